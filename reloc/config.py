@@ -1,0 +1,352 @@
+"""The project's one configuration: a YAML file mapped onto a typed, frozen, nested config.
+
+Every field has its unit in its name and a description (printed as a comment by ``reloc config dump``). Defaults come
+from the VoxelPlane-Reloc paper where it gives them. Loading reports every problem at once, each with its path
+(``extraction.voxel_size_m: must be > 0, got -1``): unknown keys, wrong types, out-of-range values and duplicate YAML
+keys. Nothing is silently corrected: types are strict (a string is never turned into a number).
+
+Stage functions never take this object; factories and the CLI read it and pass plain parameters.
+"""
+
+from __future__ import annotations
+
+import io
+from pathlib import Path
+from typing import Annotated, Any, Literal
+
+import yaml
+from pydantic import BaseModel, ConfigDict, Field, Strict, ValidationError, model_validator
+
+__all__ = ["Config", "ConfigError", "load_config", "config_from_dict", "dump_config", "default_config"]
+
+# Sequences come from YAML lists; they are accepted as lists and stored as tuples (not a correction of a value).
+FloatSeq = Annotated[tuple[float, ...], Strict(False)]
+
+
+class _Section(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True, strict=True, validate_default=True)
+
+
+class CameraConfig(_Section):
+    """The depth camera, how it is mounted and where gravity comes from."""
+
+    min_depth_m: float = Field(0.3, gt=0, description="Nearer depths are dropped as invalid.")
+    max_depth_m: float = Field(8.0, gt=0, description="Farther depths are dropped (noise grows with depth^2).")
+    pixel_stride: int = Field(1, ge=1, le=16, description="Use every n-th pixel in both directions.")
+    gravity_source: Literal["imu", "mounting", "camera_y"] = Field(
+        "camera_y",
+        description="Where the gravity direction of each frame comes from: the IMU, the mounting T_base_cam with a "
+        "level base, or the camera's +y axis (y down) within max_tilt_deg as in the paper.",
+    )
+    max_tilt_deg: float = Field(
+        20.0, ge=0, le=90, description="Tilt tolerance of the camera when gravity is taken from its y axis (tau_g)."
+    )
+    T_base_cam: FloatSeq = Field(
+        (0.0, 0.0, 1.0, 0.2, -1.0, 0.0, 0.0, 0.0, 0.0, -1.0, 0.0, 0.5, 0.0, 0.0, 0.0, 1.0),
+        description="Camera mounting on the robot base, 16 numbers row-major (p_base = T_base_cam @ p_cam). "
+        "Default: optical axis forward along base x, 0.2 m ahead and 0.5 m above the base origin.",
+    )
+
+    @model_validator(mode="after")
+    def _check(self) -> "CameraConfig":
+        errors = []
+        if self.max_depth_m <= self.min_depth_m:
+            errors.append(f"max_depth_m: must be > min_depth_m ({self.min_depth_m}), got {self.max_depth_m}")
+        if len(self.T_base_cam) != 16:
+            errors.append(f"T_base_cam: expected 16 numbers (4x4 row-major), got {len(self.T_base_cam)}")
+        else:
+            import numpy as np
+
+            from reloc.transforms import check_transform
+
+            try:
+                check_transform(np.array(self.T_base_cam).reshape(4, 4), "T_base_cam")
+            except ValueError as exc:
+                errors.append(str(exc))
+        if errors:
+            raise ValueError("\n".join(errors))
+        return self
+
+
+class ExtractionConfig(_Section):
+    """Voxel plane extraction (paper: 'Voxelplane extraction', Eq. 1-3)."""
+
+    voxel_size_m: float = Field(0.25, gt=0, le=5.0, description="Edge n of the n x n x n voxel grid.")
+    min_points_per_voxel: int = Field(12, ge=3, description="Voxels with fewer points hold no plane.")
+    max_thickness_sigmas: float = Field(
+        4.0, gt=0, description="Planarity: RMS distance to the voxel plane must be below this many sensor sigmas."
+    )
+    max_thickness_floor_m: float = Field(0.01, ge=0, description="Lower bound of the thickness threshold.")
+    max_eigen_ratio: float = Field(
+        0.05, gt=0, le=1, description="Planarity: smallest / middle eigenvalue of the voxel scatter must be below this."
+    )
+    adaptive_weights: bool = Field(True, description="Eq. 2-3 position weights (off = the paper's VR-NE).")
+    alpha: float = Field(
+        0.5, ge=0, description="Eq. 2: slope of the square model 1 - alpha (r/r_max)^2 inside sigma (r normalised)."
+    )
+    beta: float = Field(2.0, ge=0, description="Eq. 2: decay of exp(-beta (r/r_max)^2) outside sigma (r normalised).")
+    noise_weights: bool = Field(True, description="Also weight each point by 1 / sigma_z(z)^2 of the sensor model.")
+    irls_iterations: int = Field(3, ge=0, le=50, description="Residual-based robust reweighting passes (0 = off).")
+    irls_kernel_sigmas: float = Field(3.0, gt=0, description="Robust kernel width in units of the sensor sigma.")
+    noise_model: Literal["kinect", "tof", "stereo", "constant"] = Field(
+        "kinect", description="Sensor noise law used by the weights and the thresholds."
+    )
+    noise_coeff: float = Field(
+        1.425e-3, gt=0, description="kinect: sigma = c z^2; tof: sigma = c z; stereo: sigma = c z^2; constant: c."
+    )
+    area_patch_m: float = Field(0.1, gt=0, description="Patch edge l for the area estimate (paper, constraint 3).")
+    sample_spacing_m: float = Field(0.1, gt=0, description="Spacing of each plane's point sample (projection, overlap).")
+    min_plane_points: int = Field(200, ge=3, description="Merged planes with fewer points are dropped.")
+    min_plane_area_m2: float = Field(0.04, ge=0, description="Merged planes smaller than this are dropped.")
+
+
+class MergingConfig(_Section):
+    """Plane merging by 26-neighbour voxel growth, then merging of under-grown fragments (paper: 'Plane merging')."""
+
+    enabled: bool = Field(True, description="Off = the paper's VR-NM (every voxel plane stays separate).")
+    grow_max_angle_deg: float = Field(10.0, gt=0, le=90, description="Growth: normals of neighbours within this angle.")
+    grow_max_offset_m: float = Field(
+        0.04, gt=0, description="Growth: the neighbour's centroid within this distance of the seed plane."
+    )
+    undergrown_max_angle_deg: float = Field(8.0, gt=0, le=90, description="Fragments: normals within this angle.")
+    undergrown_max_depth_angle_deg: float = Field(
+        5.0, gt=0, le=90,
+        description="Fragments: the centroid-to-centroid vector within this angle of perpendicular to the normal.",
+    )
+    undergrown_max_offset_m: float = Field(0.05, gt=0, description="Fragments: centroid off the other plane by at most this.")
+    undergrown_radius_scale: float = Field(
+        1.5, gt=0, description="Fragments: centroids within the larger plane's radius times this factor."
+    )
+
+
+class MappingConfig(_Section):
+    """Building a global plane map from a posed sequence, and submaps from a window of frames."""
+
+    keyframe_min_translation_m: float = Field(0.2, ge=0, description="A new keyframe after moving this far...")
+    keyframe_min_rotation_deg: float = Field(10.0, ge=0, description="...or after turning this much.")
+    fuse_max_angle_deg: float = Field(8.0, gt=0, le=90, description="Association: normals within this angle.")
+    fuse_max_offset_m: float = Field(0.06, gt=0, description="Association: offsets within this distance.")
+    fuse_min_overlap: float = Field(
+        0.0, ge=0, le=1, description="Association: samples closer than sample spacing, as a fraction (0 = spheres touch)."
+    )
+    map_sample_spacing_m: float = Field(0.1, gt=0, description="Voxel size of each map plane's point sample.")
+    min_observations: int = Field(1, ge=1, description="Map planes seen in fewer keyframes are dropped.")
+    submap_window_frames: int = Field(1, ge=1, description="K: frames fused into a submap with their relative poses.")
+
+
+class MatchingConfig(_Section):
+    """Triplet selection and transform per triplet (paper: 'Plane matching')."""
+
+    incremental: bool = Field(True, description="Incremental input of submap planes (off = the paper's VR-NI).")
+    initial_planes: int = Field(5, ge=3, description="Planes fed first by the incremental input (paper: 5).")
+    structural_constraints: bool = Field(
+        True, description="Ground, orthogonality, distance and area constraints (off = the paper's VR-NG)."
+    )
+    ground_tolerance_deg: float = Field(
+        15.0, gt=0, le=90, description="tau_g: a floor normal within this angle of the up direction (Eq. 4-5)."
+    )
+    triplet_min_angle_deg: float = Field(40.0, ge=0, le=90, description="Orthogonality window, low end (paper: 40).")
+    triplet_max_angle_deg: float = Field(140.0, ge=90, le=180, description="Orthogonality window, high end (paper: 140).")
+    pair_angle_tolerance_deg: float = Field(
+        6.0, gt=0, description="Angles inside a map triplet must equal those of the submap triplet within this."
+    )
+    max_sphere_gap_m: float = Field(
+        1.0, ge=0, description="Map planes of a triplet: their spheres (centroid, radius) at most this far apart."
+    )
+    min_area_ratio: float = Field(
+        0.5, gt=0, le=1, description="Map plane area must be at least this times the submap plane area."
+    )
+    max_condition_number: float = Field(
+        50.0, gt=1, description="Reject triplets whose translation system is worse conditioned than this."
+    )
+    max_submap_planes: int = Field(30, ge=3, description="Largest planes of a submap considered at all.")
+
+
+class EvaluationConfig(_Section):
+    """Evaluation of each triplet's transform and the final choice (Eq. 10-14)."""
+
+    projection: bool = Field(True, description="Map-plane projection inliers, Eq. 10 (off = VR-NP).")
+    projection_inlier_m: float = Field(0.08, gt=0, description="A projected sample is an inlier within this distance.")
+    min_projection_ratio: float = Field(0.5, ge=0, le=1, description="Pairs below this inlier fraction do not match.")
+    overlap: bool = Field(True, description="Plane overlap by centre and radius, Eq. 11 (off = VR-NO).")
+    min_overlap: float = Field(0.3, ge=0, le=1, description="Pairs below this overlap do not match.")
+    scene_uniqueness: bool = Field(True, description="Require tau_m matched planes (off = VR-NS).")
+    min_matched_planes: int = Field(5, ge=3, description="tau_m: matched planes a pose needs (paper: 5).")
+    match_max_angle_deg: float = Field(5.0, gt=0, description="A submap plane matches a map plane within this angle...")
+    match_max_offset_m: float = Field(0.08, gt=0, description="...and this offset, after the transform.")
+    kde_sigma_translation_m: float = Field(0.1, gt=0, description="Eq. 14 information matrix: translation scale.")
+    kde_sigma_rotation_deg: float = Field(3.0, gt=0, description="Eq. 14 information matrix: rotation scale.")
+    min_score: float = Field(0.0, ge=0, description="The best mode's density must be above this to be accepted.")
+    min_ambiguity_ratio: float = Field(
+        1.5, ge=1, description="Best mode must beat the runner-up at a different pose by this factor."
+    )
+    distinct_translation_m: float = Field(0.25, gt=0, description="Modes farther apart than this are different poses...")
+    distinct_rotation_deg: float = Field(5.0, gt=0, description="...or rotated by more than this.")
+
+
+class LiveConfig(_Section):
+    """The live loop (``reloc run``)."""
+
+    queue_frames: int = Field(4, ge=1, description="Capture queue length; when full the oldest frame is dropped.")
+    reloc_period_s: float = Field(5.0, gt=0, description="Relocalize periodically to verify the pose.")
+    lost_jump_m: float = Field(0.5, gt=0, description="Odometry jumping more than this between frames means lost.")
+    status_period_s: float = Field(1.0, gt=0, description="How often the status line is printed.")
+    realtime: bool = Field(True, description="Simulated and replayed sources run at their frame rate.")
+
+
+class SerialConfig(_Section):
+    """The serial link to the robot's microcontroller."""
+
+    url: str = Field("", description="pyserial URL: /dev/ttyACM0, loop://, socket://HOST:PORT; empty = no link.")
+    baudrate: int = Field(921600, gt=0, description="Baud rate of a real port.")
+    read_timeout_s: float = Field(0.05, gt=0, description="Read timeout of the reader thread.")
+    write_timeout_s: float = Field(0.2, gt=0, description="A write blocked longer than this is reported.")
+    reconnect_backoff_s: FloatSeq = Field(
+        (0.1, 0.2, 0.5, 1.0, 2.0), description="Waits between reopen attempts after an unplug (the last repeats)."
+    )
+    max_frame_bytes: int = Field(512, ge=32, le=65535, description="Longer frames are discarded and counted.")
+    pose_rate_hz: float = Field(10.0, gt=0, description="Relocalized poses are sent at most this often.")
+    heartbeat_period_s: float = Field(0.5, gt=0, description="Host heartbeat period.")
+
+
+class Config(_Section):
+    """The whole configuration; every section has defaults, so an empty file is valid."""
+
+    camera: CameraConfig = CameraConfig()
+    extraction: ExtractionConfig = ExtractionConfig()
+    merging: MergingConfig = MergingConfig()
+    mapping: MappingConfig = MappingConfig()
+    matching: MatchingConfig = MatchingConfig()
+    evaluation: EvaluationConfig = EvaluationConfig()
+    live: LiveConfig = LiveConfig()
+    serial: SerialConfig = SerialConfig()
+
+
+class ConfigError(ValueError):
+    """Every problem of a config file, each as ``path: message``."""
+
+    def __init__(self, source: str, problems: list[str]):
+        self.source = source
+        self.problems = problems
+        lines = "\n".join(f"  {p}" for p in problems)
+        super().__init__(f"{source}: {len(problems)} problem(s) in the config:\n{lines}")
+
+
+def default_config() -> Config:
+    return Config()
+
+
+def _duplicate_keys(node: yaml.Node, path: str = "") -> list[str]:
+    """Paths of duplicate mapping keys anywhere in a composed YAML tree."""
+    problems = []
+    if isinstance(node, yaml.MappingNode):
+        seen: dict[str, int] = {}
+        for key_node, value_node in node.value:
+            key = str(key_node.value)
+            child = f"{path}.{key}" if path else key
+            if key in seen:
+                problems.append(
+                    f"{child}: duplicate key (first at line {seen[key] + 1}, again at line {key_node.start_mark.line + 1})"
+                )
+            else:
+                seen[key] = key_node.start_mark.line
+            problems.extend(_duplicate_keys(value_node, child))
+    elif isinstance(node, yaml.SequenceNode):
+        for i, item in enumerate(node.value):
+            problems.extend(_duplicate_keys(item, f"{path}[{i}]"))
+    return problems
+
+
+def _format_pydantic(exc: ValidationError) -> list[str]:
+    out = []
+    for err in exc.errors():
+        loc = ".".join(str(p) for p in err["loc"] if p != "__root__")
+        msg = err["msg"]
+        if msg.startswith("Value error, "):
+            msg = msg[len("Value error, "):]
+        if err["type"] == "extra_forbidden":
+            msg = "unknown key"
+        value = err.get("input")
+        shown = "" if err["type"] in ("extra_forbidden", "missing") or isinstance(value, dict) else f", got {value!r}"
+        if err["type"] == "value_error" and isinstance(value, dict):
+            # A section-level check reports several fields at once, each as "field: message".
+            out.extend(f"{loc}.{line}" if loc else line for line in msg.split("\n"))
+            continue
+        out.append(f"{loc}: {msg}{shown}" if loc else f"{msg}{shown}")
+    return out
+
+
+def config_from_dict(data: Any, source: str = "<config>") -> Config:
+    """Validate a plain mapping (as loaded from YAML) into a :class:`Config`."""
+    if data is None:
+        data = {}
+    if not isinstance(data, dict):
+        raise ConfigError(source, [f"expected a mapping of sections at the top level, got {type(data).__name__}"])
+    try:
+        return Config.model_validate(data)
+    except ValidationError as exc:
+        raise ConfigError(source, _format_pydantic(exc)) from None
+
+
+def load_config(path: str | Path | None) -> Config:
+    """Load and validate a YAML config file; ``None`` gives the defaults. Raises :class:`ConfigError`."""
+    if path is None:
+        return Config()
+    path = Path(path)
+    source = str(path)
+    try:
+        raw = path.read_bytes()
+    except OSError as exc:
+        raise ConfigError(source, [f"cannot read the file: {exc.strerror or exc}"]) from None
+    try:
+        text = raw.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise ConfigError(source, [f"not UTF-8 text (byte {exc.start}): expected a YAML file"]) from None
+    try:
+        node = yaml.compose(io.StringIO(text), Loader=yaml.SafeLoader)
+        data = yaml.safe_load(text)
+    except yaml.YAMLError as exc:
+        raise ConfigError(source, [f"not valid YAML: {exc}"]) from None
+    problems = _duplicate_keys(node) if node is not None else []
+    try:
+        cfg = config_from_dict(data, source)
+    except ConfigError as exc:
+        problems.extend(exc.problems)
+        cfg = None
+    if problems:
+        raise ConfigError(source, problems)
+    return cfg
+
+
+def config_as_dict(cfg: Config) -> dict:
+    """Plain nested dict (tuples as lists), ready for YAML or JSON."""
+
+    def plain(v):
+        if isinstance(v, dict):
+            return {k: plain(x) for k, x in v.items()}
+        if isinstance(v, (list, tuple)):
+            return [plain(x) for x in v]
+        return v
+
+    return plain(cfg.model_dump())
+
+
+def dump_config(cfg: Config | None = None, *, comments: bool = True) -> str:
+    """The config as YAML; with ``comments`` each field carries its description."""
+    cfg = cfg or Config()
+    data = config_as_dict(cfg)
+    if not comments:
+        return yaml.safe_dump(data, sort_keys=False)
+    lines = ["# voxelplane-reloc configuration (units in the key names; degrees only here and in reports)"]
+    for section_name, section_field in Config.model_fields.items():
+        section_cls = section_field.annotation
+        lines.append("")
+        lines.append(f"# {section_cls.__doc__.strip().splitlines()[0]}")
+        lines.append(f"{section_name}:")
+        for name, field in section_cls.model_fields.items():
+            value = yaml.safe_dump(data[section_name][name], default_flow_style=True, width=10_000).strip()
+            if value.endswith("\n..."):
+                value = value[: -len("\n...")]
+            value = value.removesuffix("...").strip()
+            lines.append(f"  {name}: {value}  # {field.description}")
+    return "\n".join(lines) + "\n"

@@ -1,0 +1,117 @@
+"""Plane geometry: ``n . p + d = 0`` with a unit normal ``n`` pointing to the side the sensor saw.
+
+Planes travel as a (4,) array ``[nx, ny, nz, d]`` or as separate ``normals (N, 3)`` and ``offsets (N,)``.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+__all__ = [
+    "check_normals",
+    "transform_plane",
+    "transform_planes",
+    "plane_angle_deg",
+    "plane_errors",
+    "orient_toward",
+    "plane_from_points_exact",
+    "point_plane_distance",
+]
+
+
+def check_normals(normals: np.ndarray, name: str = "normals", tol: float = 1e-6) -> np.ndarray:
+    """Validate (N, 3) unit normals and return them as float64."""
+    n = np.asarray(normals, dtype=np.float64)
+    if n.ndim != 2 or n.shape[1] != 3:
+        raise ValueError(f"{name}: expected shape (N, 3), got {n.shape}")
+    if not np.all(np.isfinite(n)):
+        raise ValueError(f"{name}: expected finite values")
+    norms = np.linalg.norm(n, axis=1)
+    bad = np.flatnonzero(np.abs(norms - 1.0) > tol)
+    if bad.size:
+        raise ValueError(f"{name}: expected unit vectors, row {bad[0]} has norm {norms[bad[0]]:.6g}")
+    return n
+
+
+def transform_planes(T_a_b: np.ndarray, normals_b: np.ndarray, offsets_b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Move planes from frame b to frame a.
+
+    With ``p_a = R p_b + t``: ``n_a = R n_b`` and ``d_a = d_b - n_a . t``. Shapes (N, 3), (N,) in and out.
+    """
+    T = np.asarray(T_a_b, dtype=np.float64)
+    n_b = np.asarray(normals_b, dtype=np.float64).reshape(-1, 3)
+    d_b = np.asarray(offsets_b, dtype=np.float64).reshape(-1)
+    n_a = n_b @ T[:3, :3].T
+    d_a = d_b - n_a @ T[:3, 3]
+    return n_a, d_a
+
+
+def transform_plane(T_a_b: np.ndarray, plane_b: np.ndarray) -> np.ndarray:
+    """Move one plane ``[nx, ny, nz, d]`` from frame b to frame a."""
+    p = np.asarray(plane_b, dtype=np.float64).reshape(4)
+    n_a, d_a = transform_planes(T_a_b, p[None, :3], p[3:4])
+    return np.concatenate([n_a[0], d_a])
+
+
+def plane_angle_deg(n1: np.ndarray, n2: np.ndarray, *, unsigned: bool = False) -> float | np.ndarray:
+    """Angle between normals in degrees. ``unsigned=True`` treats ``n`` and ``-n`` as the same direction."""
+    a = np.asarray(n1, dtype=np.float64)
+    b = np.asarray(n2, dtype=np.float64)
+    dot = np.sum(a * b, axis=-1) / (np.linalg.norm(a, axis=-1) * np.linalg.norm(b, axis=-1))
+    if unsigned:
+        dot = np.abs(dot)
+    ang = np.degrees(np.arccos(np.clip(dot, -1.0, 1.0)))
+    return float(ang) if np.ndim(ang) == 0 else ang
+
+
+def plane_errors(plane_est: np.ndarray, plane_ref: np.ndarray) -> tuple[float, float]:
+    """(angle error in degrees, offset error in m) between two planes ``[n, d]``, sign-agnostic.
+
+    The estimate is flipped to the reference's side first, so a plane fitted with the opposite normal is compared
+    fairly; the offset error is ``|d_est - d_ref|`` after that flip (the distance between the planes along the
+    normal at the origin).
+    """
+    e = np.asarray(plane_est, dtype=np.float64).reshape(4).copy()
+    r = np.asarray(plane_ref, dtype=np.float64).reshape(4)
+    e /= np.linalg.norm(e[:3])
+    if np.dot(e[:3], r[:3]) < 0:
+        e = -e
+    return float(plane_angle_deg(e[:3], r[:3])), float(abs(e[3] - r[3] / np.linalg.norm(r[:3])))
+
+
+def orient_toward(normals: np.ndarray, offsets: np.ndarray, viewpoint: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Flip planes so their normals point toward ``viewpoint`` (default: the frame origin, i.e. the sensor).
+
+    A plane faces the viewpoint ``v`` when ``n . v + d > 0``. Returns new arrays (N, 3), (N,).
+    """
+    n = np.array(normals, dtype=np.float64).reshape(-1, 3)
+    d = np.array(offsets, dtype=np.float64).reshape(-1)
+    v = np.zeros(3) if viewpoint is None else np.asarray(viewpoint, dtype=np.float64).reshape(3)
+    flip = (n @ v + d) < 0
+    n[flip] *= -1
+    d[flip] *= -1
+    return n, d
+
+
+def plane_from_points_exact(p0: np.ndarray, p1: np.ndarray, p2: np.ndarray) -> np.ndarray:
+    """Plane ``[n, d]`` through three non-collinear points."""
+    p0, p1, p2 = (np.asarray(p, dtype=np.float64).reshape(3) for p in (p0, p1, p2))
+    n = np.cross(p1 - p0, p2 - p0)
+    norm = np.linalg.norm(n)
+    if norm < 1e-12:
+        raise ValueError("p0, p1, p2: expected three non-collinear points")
+    n /= norm
+    return np.concatenate([n, [-float(n @ p0)]])
+
+
+def point_plane_distance(points: np.ndarray, plane: np.ndarray) -> np.ndarray:
+    """Signed distances (N,) of points (N, 3) to a plane ``[n, d]`` with unit ``n``."""
+    p = np.asarray(plane, dtype=np.float64).reshape(4)
+    return np.asarray(points, dtype=np.float64) @ p[:3] + p[3]
+
+
+def angle_window_ok(angle_deg: float, lo_deg: float, hi_deg: float) -> bool:
+    """True when ``lo <= angle <= hi`` (helper for the triplet orthogonality window)."""
+    return lo_deg <= angle_deg <= hi_deg and math.isfinite(angle_deg)
