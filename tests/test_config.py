@@ -1,0 +1,130 @@
+"""Config loading: defaults from the paper, and every problem reported with its exact path, all at once."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from reloc.cli import main as cli_main
+from reloc.config import Config, ConfigError, config_from_dict, dump_config, load_config
+
+
+def write(tmp_path, text: str | bytes, name: str = "c.yaml"):
+    p = tmp_path / name
+    p.write_bytes(text if isinstance(text, bytes) else text.encode())
+    return p
+
+
+def test_paper_defaults():
+    cfg = Config()
+    assert cfg.evaluation.min_matched_planes == 5  # tau_m
+    assert (cfg.matching.triplet_min_angle_deg, cfg.matching.triplet_max_angle_deg) == (40.0, 140.0)
+    assert cfg.matching.initial_planes == 5
+    T = np.array(cfg.camera.T_base_cam).reshape(4, 4)
+    # The camera looks along base x; its y (down) is base -z.
+    np.testing.assert_allclose(T[:3, 2], [1, 0, 0])
+    np.testing.assert_allclose(T[:3, 1], [0, 0, -1])
+
+
+def test_config_is_frozen():
+    cfg = Config()
+    with pytest.raises(Exception):
+        cfg.extraction.voxel_size_m = 1.0  # type: ignore[misc]
+
+
+def test_empty_file_gives_defaults(tmp_path):
+    assert load_config(write(tmp_path, "")) == Config()
+
+
+def test_dump_round_trips(tmp_path):
+    p = write(tmp_path, dump_config())
+    assert load_config(p) == Config()
+    p2 = write(tmp_path, dump_config(comments=False), "plain.yaml")
+    assert load_config(p2) == Config()
+
+
+def test_every_problem_reported_with_its_path(tmp_path):
+    text = """
+extraction:
+  voxel_size_m: -1
+  bogus_key: 3
+  adaptive_weights: "yes"
+matching:
+  initial_planes: "5"
+  triplet_min_angle_deg: 100
+camera:
+  min_depth_m: 5
+  max_depth_m: 1
+unknown_section: {}
+"""
+    with pytest.raises(ConfigError) as info:
+        load_config(write(tmp_path, text))
+    problems = info.value.problems
+    joined = "\n".join(problems)
+    expected_paths = [
+        "extraction.voxel_size_m:",
+        "extraction.bogus_key: unknown key",
+        "extraction.adaptive_weights:",
+        "matching.initial_planes:",
+        "matching.triplet_min_angle_deg:",
+        "camera.max_depth_m: must be > min_depth_m",
+        "unknown_section: unknown key",
+    ]
+    for path in expected_paths:
+        assert any(p.startswith(path) for p in problems), f"{path!r} missing from:\n{joined}"
+    assert len(problems) == len(expected_paths)
+    assert "got -1" in joined and "got '5'" in joined
+
+
+def test_duplicate_keys_are_reported_with_other_problems(tmp_path):
+    text = "extraction:\n  voxel_size_m: 0.2\n  voxel_size_m: 0.3\nmerging:\n  enabled: 1\n"
+    with pytest.raises(ConfigError) as info:
+        load_config(write(tmp_path, text))
+    problems = info.value.problems
+    assert problems[0].startswith("extraction.voxel_size_m: duplicate key (first at line 2, again at line 3)")
+    assert any(p.startswith("merging.enabled:") for p in problems)
+
+
+@pytest.mark.parametrize(
+    "content, message",
+    [
+        (b"\xff\xfe\x00garbage", "not UTF-8"),
+        ("extraction: [1, 2\n", "not valid YAML"),
+        ("- a\n- b\n", "expected a mapping of sections"),
+    ],
+)
+def test_unreadable_files(tmp_path, content, message):
+    with pytest.raises(ConfigError, match=message):
+        load_config(write(tmp_path, content))
+
+
+def test_missing_file(tmp_path):
+    with pytest.raises(ConfigError, match="cannot read the file"):
+        load_config(tmp_path / "nope.yaml")
+
+
+def test_strict_types_do_not_coerce():
+    with pytest.raises(ConfigError, match="serial.baudrate"):
+        config_from_dict({"serial": {"baudrate": 9600.5}})
+    # An int where a float is expected is not a correction.
+    assert config_from_dict({"extraction": {"voxel_size_m": 1}}).extraction.voxel_size_m == 1.0
+
+
+def test_T_base_cam_is_checked():
+    with pytest.raises(ConfigError, match="camera.T_base_cam: expected 16 numbers"):
+        config_from_dict({"camera": {"T_base_cam": [1, 2, 3]}})
+    with pytest.raises(ConfigError, match="rotation block"):
+        config_from_dict({"camera": {"T_base_cam": [2, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1]}})
+
+
+def test_cli_config_commands(tmp_path, capsys):
+    assert cli_main(["config", "dump"]) == 0
+    out = capsys.readouterr().out
+    assert "min_matched_planes: 5" in out
+    good = write(tmp_path, out, "good.yaml")
+    assert cli_main(["config", "check", str(good)]) == 0
+    bad = write(tmp_path, "extraction:\n  voxel_size_m: 0\n", "bad.yaml")
+    with pytest.raises(SystemExit) as info:
+        cli_main(["config", "check", str(bad)])
+    assert info.value.code == 1
+    assert "extraction.voxel_size_m" in capsys.readouterr().err
