@@ -1,0 +1,183 @@
+"""Helpers shared by the benchmark scripts: tables on stdout, results as JSON with their provenance.
+
+Every benchmark writes ``benchmarks/results/<name>.json`` holding the date, the machine (CPU model, cores), the git
+commit (and whether the tree had local changes), the resolved parameters of the run and its results, so a figure
+can always be traced back to the code and settings that produced it.
+
+Benchmarks are scripts, not an installed package: run them from the repository root as
+``python benchmarks/<name>.py``; this module is imported as ``_common`` from the script's own folder.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import datetime as _dt
+import json
+import math
+import os
+import platform
+import subprocess
+import sys
+from pathlib import Path
+from typing import Any, Iterable, Sequence
+
+import numpy as np
+
+__all__ = [
+    "REPO_ROOT",
+    "RESULTS_DIR",
+    "machine_info",
+    "git_info",
+    "jsonable",
+    "format_table",
+    "print_table",
+    "write_results",
+]
+
+REPO_ROOT = Path(__file__).resolve().parents[1]
+RESULTS_DIR = REPO_ROOT / "benchmarks" / "results"
+
+
+def _cpu_model() -> str:
+    try:
+        with open("/proc/cpuinfo", encoding="utf-8") as fh:
+            for line in fh:
+                if line.lower().startswith("model name"):
+                    return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return platform.processor() or platform.machine() or "unknown"
+
+
+def machine_info() -> dict:
+    """CPU model, logical cores (total and usable by this process), OS and library versions."""
+    try:
+        usable = len(os.sched_getaffinity(0))
+    except AttributeError:  # not on Linux
+        usable = os.cpu_count()
+    info = {
+        "cpu_model": _cpu_model(),
+        "cores": os.cpu_count(),
+        "cores_usable": usable,
+        "platform": platform.platform(),
+        "python": platform.python_version(),
+        "numpy": np.__version__,
+    }
+    try:
+        import numba
+
+        info["numba"] = numba.__version__
+    except ImportError:
+        pass
+    return info
+
+
+def git_info(root: Path = REPO_ROOT) -> dict:
+    """``{"commit": sha or None, "dirty": bool or None}`` of the repository at ``root``."""
+
+    def run(*args: str) -> str | None:
+        try:
+            out = subprocess.run(["git", *args], cwd=root, capture_output=True, text=True, timeout=10)
+        except (OSError, subprocess.TimeoutExpired):
+            return None
+        return out.stdout.strip() if out.returncode == 0 else None
+
+    commit = run("rev-parse", "HEAD")
+    status = run("status", "--porcelain", "--untracked-files=no")
+    return {"commit": commit, "dirty": None if status is None else bool(status)}
+
+
+def jsonable(obj: Any) -> Any:
+    """Turn numpy scalars/arrays, dataclasses, paths and non-finite floats into plain JSON values.
+
+    NaN and infinities become ``None`` (JSON has no spelling for them).
+    """
+    if dataclasses.is_dataclass(obj) and not isinstance(obj, type):
+        return jsonable(dataclasses.asdict(obj))
+    if isinstance(obj, dict):
+        return {str(k): jsonable(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [jsonable(v) for v in obj]
+    if isinstance(obj, np.ndarray):
+        return jsonable(obj.tolist())
+    if isinstance(obj, np.generic):
+        return jsonable(obj.item())
+    if isinstance(obj, float):
+        return obj if math.isfinite(obj) else None
+    if isinstance(obj, Path):
+        return str(obj)
+    if obj is None or isinstance(obj, (bool, int, str)):
+        return obj
+    return str(obj)
+
+
+def _cell(value: Any, floatfmt: str) -> str:
+    if value is None:
+        return "-"
+    if isinstance(value, (float, np.floating)):
+        return "nan" if not math.isfinite(float(value)) else format(float(value), floatfmt)
+    return str(value)
+
+
+def format_table(
+    headers: Sequence[str],
+    rows: Iterable[Sequence[Any]],
+    *,
+    title: str | None = None,
+    floatfmt: str | Sequence[str] = ".4f",
+) -> str:
+    """A plain-text table: first column left-aligned, the others right-aligned.
+
+    ``floatfmt`` is one format for every float or one per column; ``None`` cells print as ``-``.
+    """
+    rows = [list(r) for r in rows]
+    n = len(headers)
+    fmts = [floatfmt] * n if isinstance(floatfmt, str) else list(floatfmt)
+    if len(fmts) != n:
+        raise ValueError(f"floatfmt: expected one format or {n}, got {len(fmts)}")
+    cells = [[_cell(v, fmts[j]) for j, v in enumerate(r)] for r in rows]
+    for i, r in enumerate(cells):
+        if len(r) != n:
+            raise ValueError(f"rows[{i}]: expected {n} cells, got {len(r)}")
+    widths = [max([len(h)] + [len(r[j]) for r in cells]) for j, h in enumerate(headers)]
+
+    def line(parts: Sequence[str]) -> str:
+        return "  ".join(p.ljust(widths[j]) if j == 0 else p.rjust(widths[j]) for j, p in enumerate(parts))
+
+    out = []
+    if title:
+        out.append(title)
+    out.append(line(headers))
+    out.append("  ".join("-" * w for w in widths))
+    out.extend(line(r) for r in cells)
+    return "\n".join(out)
+
+
+def print_table(headers: Sequence[str], rows: Iterable[Sequence[Any]], **kwargs) -> str:
+    """Print :func:`format_table` (and a blank line) to stdout; return the text."""
+    text = format_table(headers, rows, **kwargs)
+    print(text + "\n", flush=True)
+    return text
+
+
+def write_results(name: str, *, params: dict, results: Any, out_dir: Path | None = None) -> Path:
+    """Write ``<out_dir>/<name>.json`` atomically with date, machine, git state, ``params`` and ``results``.
+
+    ``out_dir`` defaults to ``benchmarks/results``. Returns the path written.
+    """
+    from reloc.atomic import atomic_write_text
+
+    if not name or any(c in name for c in "/\\"):
+        raise ValueError(f"name: expected a plain file stem, got {name!r}")
+    path = (out_dir or RESULTS_DIR) / f"{name}.json"
+    payload = {
+        "benchmark": name,
+        "date": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
+        "command": " ".join([Path(sys.argv[0]).name, *sys.argv[1:]]) if sys.argv else "",
+        "machine": machine_info(),
+        "git": git_info(),
+        "params": params,
+        "results": results,
+    }
+    atomic_write_text(path, json.dumps(jsonable(payload), indent=1, allow_nan=False) + "\n")
+    return path

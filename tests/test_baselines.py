@@ -1,0 +1,122 @@
+"""The plane-fitting baselines of benchmarks/plane_baselines.py against ground truth on easy synthetic planes.
+
+Data: a 4 m x 4 m plane about 4 m from the sensor, 3 mm Gaussian noise along the normal, and (for the robust
+methods) 10 % outliers uniform in the padded bounding box. With ~3000 inliers the statistical error of an
+inlier-only fit is about 3 mm / sqrt(3000) in offset and a few thousandths of a degree in angle, so the tolerances
+below (0.1 deg, 2 mm) leave a wide margin for a correct fit yet fail for a fit that outliers pull off (plain PCA on
+the contaminated cloud is off by about a degree).
+"""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
+
+import plane_baselines as pb  # noqa: E402
+
+from reloc.planes import plane_errors  # noqa: E402
+
+NOISE_M = 0.003
+THRESHOLD_M = 3 * NOISE_M
+
+
+def _plane_cloud(seed: int, n_inliers: int = 3000, outlier_fraction: float = 0.0):
+    """Points of a tilted plane facing the origin, and its ground truth [n, d] (d > 0)."""
+    rng = np.random.default_rng(seed)
+    n = rng.normal(size=3)
+    n[2] = -abs(n[2]) - 1.0  # facing the sensor at the origin, looking along +z
+    n /= np.linalg.norm(n)
+    d = 4.0
+    e1 = np.cross(n, [1.0, 0.0, 0.0])
+    e1 /= np.linalg.norm(e1)
+    e2 = np.cross(n, e1)
+    uv = rng.uniform(-2.0, 2.0, size=(n_inliers, 2))
+    pts = -d * n + uv[:, :1] * e1 + uv[:, 1:] * e2 + rng.normal(0.0, NOISE_M, size=(n_inliers, 1)) * n
+    n_out = int(round(outlier_fraction * n_inliers / (1 - outlier_fraction)))
+    if n_out:
+        lo, hi = pts.min(axis=0) - 0.3, pts.max(axis=0) + 0.3
+        pts = np.vstack([pts, rng.uniform(lo, hi, size=(n_out, 3))])
+        pts = pts[rng.permutation(pts.shape[0])]
+    return pts, np.concatenate([n, [d]])
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+@pytest.mark.parametrize("name", ["PCA", "PCA-LS", "RANSAC", "LO-RANSAC", "NDT-RANSAC"])
+def test_baseline_recovers_clean_plane(name, seed):
+    pts, truth = _plane_cloud(seed)
+    fit = pb.BASELINES[name](pts, THRESHOLD_M, np.random.default_rng(seed), seed)
+    angle_deg, offset_m = plane_errors(fit.plane, truth)
+    assert angle_deg < 0.1 and offset_m < 0.002, (name, angle_deg, offset_m)
+    assert abs(np.linalg.norm(fit.normal) - 1.0) < 1e-12
+    assert fit.d > 0  # oriented toward the sensor at the origin
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+@pytest.mark.parametrize("name", ["PCA-LS", "RANSAC", "LO-RANSAC", "NDT-RANSAC"])
+def test_robust_baselines_reject_outliers(name, seed):
+    pts, truth = _plane_cloud(seed, outlier_fraction=0.1)
+    fit = pb.BASELINES[name](pts, THRESHOLD_M, np.random.default_rng(seed), seed)
+    angle_deg, offset_m = plane_errors(fit.plane, truth)
+    assert angle_deg < 0.1 and offset_m < 0.002, (name, angle_deg, offset_m)
+
+
+def test_plain_pca_is_pulled_by_outliers():
+    # The contrast that makes the outlier test meaningful: the same data moves plain PCA by far more.
+    errs = [plane_errors(pb.pca_plane(_plane_cloud(s, outlier_fraction=0.1)[0]).plane, _plane_cloud(s)[1]) for s in range(3)]
+    assert max(a for a, _ in errs) > 0.3
+
+
+def test_count_inliers_matches_numpy_reference():
+    rng = np.random.default_rng(5)
+    pts = rng.normal(size=(500, 3))
+    planes = rng.normal(size=(20, 4))
+    planes[:, :3] /= np.linalg.norm(planes[:, :3], axis=1, keepdims=True)
+    planes[3] = np.nan  # a degenerate hypothesis counts -1
+    for t in (0.05, 0.3, 1.0):
+        np.testing.assert_array_equal(pb.count_inliers(pts, planes, t), pb.count_inliers_reference(pts, planes, t))
+
+
+@pytest.mark.parametrize("name", ["RANSAC", "LO-RANSAC", "NDT-RANSAC"])
+def test_same_seed_same_plane(name):
+    pts, _ = _plane_cloud(7, outlier_fraction=0.2)
+    a = pb.BASELINES[name](pts, THRESHOLD_M, np.random.default_rng(3), 3)
+    b = pb.BASELINES[name](pts, THRESHOLD_M, np.random.default_rng(3), 3)
+    np.testing.assert_array_equal(a.plane, b.plane)
+
+
+def test_ransac_iterations_adapt_to_inlier_ratio():
+    # 0.99 confidence with w = 1 / (1 + 0.2/0.8) = 0.8 needs about log(0.01)/log(1 - 0.512) = 6.4 hypotheses:
+    # the search stops after the first batch instead of running to max_iterations.
+    pts, _ = _plane_cloud(4, outlier_fraction=0.2)
+    fit = pb.ransac_plane(pts, threshold_m=THRESHOLD_M, rng=np.random.default_rng(0), max_iterations=1000, batch=32)
+    assert fit.iterations == 32
+
+
+def test_ndt_ransac_falls_back_without_planar_cells():
+    rng = np.random.default_rng(0)
+    blob = rng.normal(size=(400, 3))  # isotropic: no cell is planar
+    fit = pb.ndt_ransac_plane(blob, threshold_m=0.05, rng=rng, cell_size_m=10.0)
+    assert "plain RANSAC" in fit.note
+
+
+@pytest.mark.parametrize(
+    "bad, match",
+    [(np.zeros((5, 2)), r"points: expected shape \(N, 3\)"), (np.zeros((2, 3)), "at least 3 points"),
+     (np.full((5, 3), np.nan), "finite")],
+)
+def test_bad_points_raise(bad, match):
+    with pytest.raises(ValueError, match=match):
+        pb.pca_plane(bad)
+
+
+def test_bad_threshold_and_rng_raise():
+    pts, _ = _plane_cloud(0, n_inliers=50)
+    with pytest.raises(ValueError, match="threshold_m"):
+        pb.ransac_plane(pts, threshold_m=-1.0, rng=np.random.default_rng(0))
+    with pytest.raises(ValueError, match="rng"):
+        pb.ransac_plane(pts, threshold_m=0.01, rng=0)
