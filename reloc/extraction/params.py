@@ -1,0 +1,172 @@
+"""Plain parameters of plane extraction and merging, and the sensor noise law they use.
+
+:class:`ExtractionParams` is what every extraction function takes; it is built from the config at the edges
+(:meth:`ExtractionParams.from_config`) and holds metres and radians only.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, fields, replace
+
+import numpy as np
+
+__all__ = ["ExtractionParams", "NOISE_MODELS", "noise_sigma", "noise_law_code"]
+
+# Noise law of a depth measurement at depth z (metres): sigma_z = coeff * z**power.
+NOISE_MODELS = {"constant": 0, "tof": 1, "kinect": 2, "stereo": 2}
+NOISE_DIRECTIONS = ("ray", "normal")
+GRAVITY_FALLBACKS = ("camera_y", "none")
+
+
+def noise_law_code(noise_model: str) -> int:
+    """The exponent of depth in the noise law of ``noise_model`` (0, 1 or 2), as the kernels take it."""
+    if noise_model not in NOISE_MODELS:
+        raise ValueError(f"noise_model: expected one of {sorted(NOISE_MODELS)}, got {noise_model!r}")
+    return NOISE_MODELS[noise_model]
+
+
+def noise_sigma(z_m: np.ndarray | float, noise_model: str = "kinect", noise_coeff: float = 1.425e-3) -> np.ndarray:
+    """Standard deviation (m) of a depth measurement at depth ``z_m`` (m) under ``noise_model``."""
+    return noise_coeff * np.abs(np.asarray(z_m, dtype=np.float64)) ** noise_law_code(noise_model)
+
+
+@dataclass(frozen=True)
+class ExtractionParams:
+    """Everything extraction and merging need, as plain values (metres, radians).
+
+    Depth to points: ``min_depth_m``, ``max_depth_m``, ``pixel_stride``.
+    Voxels and planarity: ``voxel_size_m``, ``min_points_per_voxel``; a voxel holds a plane when the RMS distance of
+    its points to their PCA plane is below ``max(max_thickness_sigmas * sigma(z), max_thickness_floor_m)`` and the
+    smallest / middle eigenvalue ratio is below ``max_eigen_ratio``.
+    Weighted refit (paper Eq. 2-3 and beyond), each ingredient switchable:
+    - ``adaptive_weights``: the paper's position weight ``1 - alpha rho^2`` for ``rho <= 1/2``, ``exp(-beta rho^2)``
+      beyond, with ``rho`` the distance to the plane centre over the largest such distance (off = VR-NE).
+    - ``noise_weights``: ``1 / sigma_i^2`` from the noise law ``sigma_z = noise_coeff * z^k`` (``noise_model``).
+      With ``noise_direction="ray"`` the depth noise moves a point along its viewing ray, so its distance to the
+      plane varies by ``sigma_z |n . ray| / ray_z`` (incidence taken into account); with ``"normal"`` the noise is
+      taken along the plane normal (``sigma_z`` itself), as in the paper's synthetic Table 2 protocol.
+    - ``irls_iterations`` passes of residual-based reweighting with Tukey's biweight of width
+      ``irls_kernel_sigmas`` in units of the (robustly rescaled) per-point sigma.
+    Single point sets (:func:`fit_plane`): ``ransac_hypotheses`` three-point hypotheses scored by a truncated
+    sigma-normalised cost give the robust start of the IRLS (0 = start from the noise-weighted PCA); ``seed`` makes
+    it repeatable.
+    Merging: ``merge`` (off = VR-NM); growth over the 26-neighbourhood accepts a neighbour voxel whose normal is
+    within ``grow_max_angle_rad`` of the growing plane and whose centroid lies within
+    ``max(grow_max_offset_m, grow_offset_sigmas * sigma(z))`` of it. Under-grown fragments merge when their normals
+    are within ``undergrown_max_angle_rad``, the centroid-to-centroid vector is within
+    ``undergrown_max_depth_angle_rad`` of perpendicular to both normals (or the centroids lie within
+    ``undergrown_max_offset_m`` of the other plane), and the centroids are within ``undergrown_radius_scale`` times
+    the larger radius.
+    Plane set: ``area_patch_m`` (l of the area count), ``sample_spacing_m``, ``inlier_sigmas`` (points of a
+    plane's voxels farther than this many sigmas are not labelled as the plane), ``min_plane_points``,
+    ``min_plane_area_m2``; ``gravity_fallback`` says what a frame without ``gravity_cam`` gets: the camera's +y axis
+    (``"camera_y"``) or no gravity (``"none"``).
+    """
+
+    min_depth_m: float = 0.3
+    max_depth_m: float = 8.0
+    pixel_stride: int = 1
+    voxel_size_m: float = 0.25
+    min_points_per_voxel: int = 12
+    max_thickness_sigmas: float = 4.0
+    max_thickness_floor_m: float = 0.01
+    max_eigen_ratio: float = 0.05
+    adaptive_weights: bool = True
+    alpha: float = 0.5
+    beta: float = 2.0
+    noise_weights: bool = True
+    noise_direction: str = "ray"
+    irls_iterations: int = 3
+    irls_kernel_sigmas: float = 3.0
+    noise_model: str = "kinect"
+    noise_coeff: float = 1.425e-3
+    ransac_hypotheses: int = 256
+    seed: int = 0
+    merge: bool = True
+    grow_max_angle_rad: float = math.radians(10.0)
+    grow_max_offset_m: float = 0.04
+    grow_offset_sigmas: float = 3.0
+    undergrown_max_angle_rad: float = math.radians(8.0)
+    undergrown_max_depth_angle_rad: float = math.radians(5.0)
+    undergrown_max_offset_m: float = 0.05
+    undergrown_radius_scale: float = 1.5
+    area_patch_m: float = 0.1
+    sample_spacing_m: float = 0.1
+    inlier_sigmas: float = 4.0
+    min_plane_points: int = 200
+    min_plane_area_m2: float = 0.04
+    gravity_fallback: str = "camera_y"
+
+    def __post_init__(self) -> None:
+        positive = (
+            "max_depth_m", "voxel_size_m", "max_thickness_sigmas", "max_eigen_ratio", "irls_kernel_sigmas",
+            "noise_coeff", "grow_max_angle_rad", "grow_max_offset_m", "undergrown_max_angle_rad",
+            "undergrown_max_depth_angle_rad", "undergrown_max_offset_m", "undergrown_radius_scale", "area_patch_m",
+            "sample_spacing_m", "inlier_sigmas",
+        )
+        for name in positive:
+            v = getattr(self, name)
+            if not isinstance(v, (int, float)) or not math.isfinite(v) or v <= 0:
+                raise ValueError(f"ExtractionParams.{name}: expected a finite number > 0, got {v!r}")
+        non_negative = ("min_depth_m", "max_thickness_floor_m", "alpha", "beta", "grow_offset_sigmas",
+                        "min_plane_area_m2")
+        for name in non_negative:
+            v = getattr(self, name)
+            if not isinstance(v, (int, float)) or not math.isfinite(v) or v < 0:
+                raise ValueError(f"ExtractionParams.{name}: expected a finite number >= 0, got {v!r}")
+        if self.max_depth_m <= self.min_depth_m:
+            raise ValueError(
+                f"ExtractionParams.max_depth_m: expected > min_depth_m ({self.min_depth_m}), got {self.max_depth_m}"
+            )
+        for name, lo in (("pixel_stride", 1), ("min_points_per_voxel", 3), ("irls_iterations", 0),
+                         ("ransac_hypotheses", 0), ("min_plane_points", 3), ("seed", 0)):
+            v = getattr(self, name)
+            if not isinstance(v, (int, np.integer)) or isinstance(v, bool) or v < lo:
+                raise ValueError(f"ExtractionParams.{name}: expected an integer >= {lo}, got {v!r}")
+        for name in ("adaptive_weights", "noise_weights", "merge"):
+            if not isinstance(getattr(self, name), (bool, np.bool_)):
+                raise ValueError(f"ExtractionParams.{name}: expected a bool, got {getattr(self, name)!r}")
+        noise_law_code(self.noise_model)
+        if self.noise_direction not in NOISE_DIRECTIONS:
+            raise ValueError(f"ExtractionParams.noise_direction: expected one of {NOISE_DIRECTIONS}, "
+                             f"got {self.noise_direction!r}")
+        if self.gravity_fallback not in GRAVITY_FALLBACKS:
+            raise ValueError(f"ExtractionParams.gravity_fallback: expected one of {GRAVITY_FALLBACKS}, "
+                             f"got {self.gravity_fallback!r}")
+
+    @property
+    def noise_power(self) -> int:
+        """Exponent ``k`` of the noise law ``sigma_z = noise_coeff * z**k``."""
+        return noise_law_code(self.noise_model)
+
+    def with_(self, **changes) -> "ExtractionParams":
+        """A copy with some fields changed (unknown names raise ValueError)."""
+        known = {f.name for f in fields(self)}
+        unknown = sorted(set(changes) - known)
+        if unknown:
+            raise ValueError(f"ExtractionParams: unknown parameter(s) {unknown}; expected some of {sorted(known)}")
+        return replace(self, **changes)
+
+    @classmethod
+    def from_config(cls, cfg) -> "ExtractionParams":
+        """Parameters from a :class:`reloc.config.Config` (its camera, extraction and merging sections)."""
+        cam, ex, mg = cfg.camera, cfg.extraction, cfg.merging
+        known = {f.name for f in fields(cls)}
+        # Extraction fields named like ours pass through; degrees become radians.
+        kwargs = {name: getattr(ex, name) for name in type(ex).model_fields if name in known}
+        kwargs.update(
+            min_depth_m=cam.min_depth_m,
+            max_depth_m=cam.max_depth_m,
+            pixel_stride=cam.pixel_stride,
+            gravity_fallback="camera_y" if cam.gravity_source == "camera_y" else "none",
+            merge=mg.enabled,
+        )
+        for name in type(mg).model_fields:
+            if name == "enabled":
+                continue
+            if name.endswith("_deg"):
+                kwargs[name[: -len("_deg")] + "_rad"] = math.radians(getattr(mg, name))
+            elif name in known:
+                kwargs[name] = getattr(mg, name)
+        return cls(**kwargs)
