@@ -446,13 +446,29 @@ def open3d_plane(
     return BaselineFit(n, d, len(inliers), int(num_iterations))
 
 
-# Name -> fit(points, threshold_m, rng, seed). The benchmark passes the same points to each.
+# How the benchmark sets the baselines' scale parameters from the sensor noise sigma it gives them (the same
+# knowledge of the noise law that ours gets): the RANSAC inlier threshold, and the NDT cell edge, large enough for
+# a noisy plane to stay planar in a cell (smallest / middle eigenvalue ~ 12 sigma^2 / cell^2 ~ 0.05 < 0.1).
+THRESHOLD_SIGMAS = 2.5
+NDT_CELL_SIGMAS = 15.0
+NDT_MIN_CELL_M = 0.5
+
+
+def _ndt(p, sigma_m, rng):
+    return ndt_ransac_plane(
+        p, threshold_m=THRESHOLD_SIGMAS * sigma_m, rng=rng, cell_size_m=max(NDT_MIN_CELL_M, NDT_CELL_SIGMAS * sigma_m)
+    )
+
+
+# Name -> fit(points, *, sigma_m, rng, seed): every baseline on the same points with the same noise scale.
 BASELINES: dict[str, Callable[..., BaselineFit]] = {
-    "PCA": lambda p, threshold_m, rng, seed: pca_plane(p),
-    "PCA-LS": lambda p, threshold_m, rng, seed: pca_ls_plane(p),
-    "RANSAC": lambda p, threshold_m, rng, seed: ransac_plane(p, threshold_m=threshold_m, rng=rng),
-    "LO-RANSAC": lambda p, threshold_m, rng, seed: lo_ransac_plane(p, threshold_m=threshold_m, rng=rng),
-    "NDT-RANSAC": lambda p, threshold_m, rng, seed: ndt_ransac_plane(p, threshold_m=threshold_m, rng=rng),
+    "PCA": lambda p, *, sigma_m, rng, seed: pca_plane(p),
+    "PCA-LS": lambda p, *, sigma_m, rng, seed: pca_ls_plane(p),
+    "RANSAC": lambda p, *, sigma_m, rng, seed: ransac_plane(p, threshold_m=THRESHOLD_SIGMAS * sigma_m, rng=rng),
+    "LO-RANSAC": lambda p, *, sigma_m, rng, seed: lo_ransac_plane(p, threshold_m=THRESHOLD_SIGMAS * sigma_m, rng=rng),
+    "NDT-RANSAC": lambda p, *, sigma_m, rng, seed: _ndt(p, sigma_m, rng),
 }
 if open3d_available():
-    BASELINES["Open3D"] = lambda p, threshold_m, rng, seed: open3d_plane(p, threshold_m=threshold_m, seed=seed)
+    BASELINES["Open3D"] = lambda p, *, sigma_m, rng, seed: open3d_plane(
+        p, threshold_m=THRESHOLD_SIGMAS * sigma_m, seed=seed
+    )

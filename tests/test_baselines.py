@@ -22,7 +22,7 @@ import plane_baselines as pb  # noqa: E402
 from reloc.planes import plane_errors  # noqa: E402
 
 NOISE_M = 0.003
-THRESHOLD_M = 3 * NOISE_M
+THRESHOLD_M = pb.THRESHOLD_SIGMAS * NOISE_M
 
 
 def _plane_cloud(seed: int, n_inliers: int = 3000, outlier_fraction: float = 0.0):
@@ -49,7 +49,7 @@ def _plane_cloud(seed: int, n_inliers: int = 3000, outlier_fraction: float = 0.0
 @pytest.mark.parametrize("name", ["PCA", "PCA-LS", "RANSAC", "LO-RANSAC", "NDT-RANSAC"])
 def test_baseline_recovers_clean_plane(name, seed):
     pts, truth = _plane_cloud(seed)
-    fit = pb.BASELINES[name](pts, THRESHOLD_M, np.random.default_rng(seed), seed)
+    fit = pb.BASELINES[name](pts, sigma_m=NOISE_M, rng=np.random.default_rng(seed), seed=seed)
     angle_deg, offset_m = plane_errors(fit.plane, truth)
     assert angle_deg < 0.1 and offset_m < 0.002, (name, angle_deg, offset_m)
     assert abs(np.linalg.norm(fit.normal) - 1.0) < 1e-12
@@ -60,7 +60,7 @@ def test_baseline_recovers_clean_plane(name, seed):
 @pytest.mark.parametrize("name", ["PCA-LS", "RANSAC", "LO-RANSAC", "NDT-RANSAC"])
 def test_robust_baselines_reject_outliers(name, seed):
     pts, truth = _plane_cloud(seed, outlier_fraction=0.1)
-    fit = pb.BASELINES[name](pts, THRESHOLD_M, np.random.default_rng(seed), seed)
+    fit = pb.BASELINES[name](pts, sigma_m=NOISE_M, rng=np.random.default_rng(seed), seed=seed)
     angle_deg, offset_m = plane_errors(fit.plane, truth)
     assert angle_deg < 0.1 and offset_m < 0.002, (name, angle_deg, offset_m)
 
@@ -84,8 +84,8 @@ def test_count_inliers_matches_numpy_reference():
 @pytest.mark.parametrize("name", ["RANSAC", "LO-RANSAC", "NDT-RANSAC"])
 def test_same_seed_same_plane(name):
     pts, _ = _plane_cloud(7, outlier_fraction=0.2)
-    a = pb.BASELINES[name](pts, THRESHOLD_M, np.random.default_rng(3), 3)
-    b = pb.BASELINES[name](pts, THRESHOLD_M, np.random.default_rng(3), 3)
+    a = pb.BASELINES[name](pts, sigma_m=NOISE_M, rng=np.random.default_rng(3), seed=3)
+    b = pb.BASELINES[name](pts, sigma_m=NOISE_M, rng=np.random.default_rng(3), seed=3)
     np.testing.assert_array_equal(a.plane, b.plane)
 
 
