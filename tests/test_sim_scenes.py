@@ -1,0 +1,118 @@
+"""Scenes, camera presets and trajectories of the simulator."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from sim.cameras import PRESETS, preset
+from sim.free_space import is_free
+from sim.scenes import SCENE_NAMES, make_scene
+from sim.trajectories import camera_rotation, handheld, random_views, robot
+
+
+@pytest.mark.parametrize("name", SCENE_NAMES)
+def test_scene_planes_are_consistent(name):
+    scene = make_scene(name)
+    assert scene.n_planes >= 40
+    np.testing.assert_array_equal(scene.plane_ids, np.arange(1, scene.n_planes + 1))
+    np.testing.assert_allclose(np.linalg.norm(scene.normals, axis=1), 1.0, atol=1e-12)
+    # Every polygon lies on its plane; every plane has at least one polygon.
+    for q in range(scene.n_polygons):
+        v = scene.poly_vertices[scene.poly_ptr[q] : scene.poly_ptr[q + 1]]
+        row = scene.poly_plane[q]
+        assert np.abs(v @ scene.normals[row] + scene.offsets[row]).max() < 1e-9
+    assert set(scene.poly_plane.tolist()) == set(range(scene.n_planes))
+    # Floor at z = 0 with its normal up; walls vertical; at least one tilted plane except where none is planned.
+    floor = scene.plane_kinds.index("floor")
+    np.testing.assert_allclose(scene.normals[floor], [0, 0, 1])
+    assert scene.offsets[floor] == 0
+    walls = [i for i, k in enumerate(scene.plane_kinds) if k == "wall"]
+    assert np.abs(scene.normals[walls, 2]).max() < 1e-12
+    assert scene.rooms.shape[0] >= 1
+    assert np.all(scene.plane_areas() > 0)
+
+
+def test_scenes_are_stable_and_seeded():
+    a, b = make_scene("living_room"), make_scene("living_room", seed=5)
+    np.testing.assert_array_equal(a.poly_vertices, b.poly_vertices)  # hand-made: the seed changes nothing
+    r0, r0b, r1 = make_scene("random", 0), make_scene("random", 0), make_scene("random", 1)
+    np.testing.assert_array_equal(r0.poly_vertices, r0b.poly_vertices)
+    np.testing.assert_array_equal(r0.normals, r0b.normals)
+    assert r0.poly_vertices.shape != r1.poly_vertices.shape or not np.allclose(r0.poly_vertices, r1.poly_vertices)
+
+
+def test_scene_contents_match_the_brief():
+    kinds = {n: set(make_scene(n).plane_kinds) for n in ("living_room", "office", "apartment")}
+    for n, k in kinds.items():
+        assert {"floor", "ceiling", "wall", "jamb", "furniture", "tilted"} <= k, n
+    lr = make_scene("living_room")
+    assert lr.cylinders.shape[0] >= 1 and lr.spheres.shape[0] >= 1
+    assert make_scene("apartment").rooms.shape[0] >= 5
+    assert make_scene("building").n_planes >= 1000
+    # Meeting rooms are identical copies: the same plane offsets up to a shift along x.
+    m = make_scene("meeting_rooms")
+    assert m.rooms.shape[0] == 5
+    # Symmetric room: rotating by 90 degrees about its centre maps the plane set onto itself.
+    s = make_scene("symmetric_room")
+    R = np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
+    c = np.array([3.0, 3.0, 0.0])
+    n_rot = s.normals @ R.T
+    d_rot = s.offsets - n_rot @ (c - R @ c)  # p' = R (p - c) + c
+    planes = np.round(np.column_stack([s.normals, s.offsets]), 6)
+    rotated = np.round(np.column_stack([n_rot, d_rot]), 6)
+    assert {tuple(p) for p in planes} == {tuple(p) for p in rotated}
+
+
+def test_camera_presets():
+    assert {"oak-d", "kinect", "l515", "wide-tof"} <= set(PRESETS)
+    assert preset("oak-d").shape == (400, 640)
+    assert preset("kinect").shape == (480, 640)
+    assert preset("l515").shape == (768, 1024)
+    w = preset("wide-tof")
+    hfov = 2 * math.degrees(math.atan(w.width / 2 / w.fx))
+    vfov = 2 * math.degrees(math.atan(w.height / 2 / w.fy))
+    assert abs(hfov - 100) < 1 and abs(vfov - 75) < 1
+
+
+def test_camera_rotation_convention():
+    R = camera_rotation(0.0)
+    np.testing.assert_allclose(R[:, 2], [1, 0, 0], atol=1e-12)  # optical axis along +x
+    np.testing.assert_allclose(R[:, 1], [0, 0, -1], atol=1e-12)  # image down is world down
+    R = camera_rotation(math.pi / 2, pitch=math.radians(30))
+    assert R[2, 2] > 0.49  # pitched up: the optical axis rises
+    np.testing.assert_allclose(R @ R.T, np.eye(3), atol=1e-12)
+
+
+def test_robot_trajectory():
+    scene = make_scene("apartment")
+    T = robot(scene, 300, seed=2, height_m=0.35, max_pitch_deg=2.0, max_roll_deg=1.5)
+    assert T.shape == (300, 4, 4)
+    np.testing.assert_allclose(T[:, 2, 3], 0.35)
+    assert is_free(scene, T[:, :2, 3], 0.3).all()
+    steps = np.linalg.norm(np.diff(T[:, :2, 3], axis=0), axis=1)
+    assert steps.max() <= 0.35 / 30 + 1e-9 and steps.sum() > 1.0
+    # Small pitch and roll: the camera's down axis stays within ~2.5 degrees of gravity.
+    tilt = np.degrees(np.arccos(np.clip(-T[:, 2, 1], -1, 1)))
+    assert tilt.max() < 2.6
+    np.testing.assert_array_equal(T, robot(scene, 300, seed=2, height_m=0.35, max_pitch_deg=2.0, max_roll_deg=1.5))
+
+
+def test_handheld_trajectory():
+    scene = make_scene("office")
+    T = handheld(scene, 200, seed=3)
+    assert is_free(scene, T[:, :2, 3], 0.2).all()
+    assert 1.2 < T[:, 2, 3].min() and T[:, 2, 3].max() < 1.6
+    v = np.linalg.norm(np.diff(T[:, :3, 3], axis=0), axis=1) * 30
+    assert v.max() < 1.2  # a walking pace
+
+
+def test_random_views_look_at_structure():
+    scene = make_scene("apartment")
+    T = random_views(scene, 6, seed=4)
+    assert is_free(scene, T[:, :2, 3], 0.3).all()
+    # Not inside any room's furniture and inside some room.
+    assert np.all((T[:, 2, 3] >= 0.3) & (T[:, 2, 3] <= 1.8))
+    assert len({tuple(np.round(t[:3, 3], 3)) for t in T}) == 6
