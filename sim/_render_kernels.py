@@ -192,11 +192,13 @@ def rasterize_polygons(
 
 @njit
 def _box_to_pixels(R, t, fx, fy, cx, cy, near, H, W, x0, y0, z0, x1, y1, z1, out):
-    """Image box (r0, r1, c0, c1) of a world AABB into ``out``; the whole image when a corner is behind ``near``."""
+    """Image box (r0, r1, c0, c1) of a world AABB into ``out``: empty when it is wholly behind the near plane, the
+    whole image when it straddles it."""
     umin = 1e300
     umax = -1e300
     vmin = 1e300
     vmax = -1e300
+    behind = 0
     for k in range(8):
         wx = x1 if (k & 1) else x0
         wy = y1 if (k & 2) else y0
@@ -205,17 +207,26 @@ def _box_to_pixels(R, t, fx, fy, cx, cy, near, H, W, x0, y0, z0, x1, y1, z1, out
         pcy = R[1, 0] * wx + R[1, 1] * wy + R[1, 2] * wz + t[1]
         pcz = R[2, 0] * wx + R[2, 1] * wy + R[2, 2] * wz + t[2]
         if pcz < near:
-            out[0] = 0
-            out[1] = H - 1
-            out[2] = 0
-            out[3] = W - 1
-            return
+            behind += 1
+            continue
         u = fx * pcx / pcz + cx
         v = fy * pcy / pcz + cy
         umin = min(umin, u)
         umax = max(umax, u)
         vmin = min(vmin, v)
         vmax = max(vmax, v)
+    if behind == 8:  # wholly behind the camera: an empty box
+        out[0] = 0
+        out[1] = -1
+        out[2] = 0
+        out[3] = -1
+        return
+    if behind > 0:  # straddles the near plane: no safe projection, take the whole image
+        out[0] = 0
+        out[1] = H - 1
+        out[2] = 0
+        out[3] = W - 1
+        return
     out[0] = max(0, int(math.floor(vmin)))
     out[1] = min(H - 1, int(math.ceil(vmax)))
     out[2] = max(0, int(math.floor(umin)))

@@ -103,59 +103,42 @@ class NoiseModel:
 
         ``depth_m`` (H, W) noise-free (NaN = nothing), ``labels`` (H, W) int32. Deterministic given ``rng``'s state.
         """
-        z = np.asarray(depth_m, dtype=np.float64)
-        if z.shape != intrinsics.shape or np.shape(labels) != intrinsics.shape:
-            raise ValueError(f"depth_m, labels: expected shape {intrinsics.shape}, got {z.shape}, {np.shape(labels)}")
+        from sim import _noise_kernels as _k
+
+        if np.shape(depth_m) != intrinsics.shape or np.shape(labels) != intrinsics.shape:
+            raise ValueError(f"depth_m, labels: expected shape {intrinsics.shape}, got {np.shape(depth_m)}, "
+                             f"{np.shape(labels)}")
+        z = np.ascontiguousarray(depth_m, dtype=np.float32)
+        lab = np.ascontiguousarray(labels, dtype=np.int32)
         H, W = z.shape
-        valid = np.isfinite(z)
-        out = np.where(valid, z, np.nan)
-        lab = np.where(valid, labels, 0).astype(np.int32)
-        # Draw every random field up front, in a fixed order, so results depend on the seed only.
-        u_fly = rng.random((H, W))
-        a_fly = rng.random((H, W))
-        gauss = rng.standard_normal((H, W))
-        u_miss = rng.random((H, W))
+        # Draws in a fixed order, so the result depends on the seed only.
+        gauss = rng.standard_normal((H, W), dtype=np.float32)
+        u_miss = rng.random((H, W), dtype=np.float32)
+        cand = np.zeros((H, W), dtype=np.bool_)
+        n_cand = _k.flying_candidates(z, float(self.discontinuity_rel), cand) if self.flying_probability > 0 else 0
+        u_fly = rng.random(n_cand, dtype=np.float32)
+        a_fly = rng.random(n_cand, dtype=np.float32)
+        kind = {"none": _k.KIND_NONE, "kinect": _k.KIND_KINECT, "stereo": _k.KIND_STEREO, "tof": _k.KIND_TOF}[self.name]
+        corner = max(np.hypot(intrinsics.cx, intrinsics.cy), np.hypot(W - 1 - intrinsics.cx, intrinsics.cy),
+                     np.hypot(intrinsics.cx, H - 1 - intrinsics.cy), np.hypot(W - 1 - intrinsics.cx, H - 1 - intrinsics.cy))
+        out = np.empty((H, W), np.float32)
+        out_lab = np.empty((H, W), np.int32)
+        _k.apply_noise(
+            z, lab, kind, gauss, u_miss, cand, u_fly, a_fly,
+            float(self.min_range_m), float(min(self.max_range_m, 1e30)), float(self.missing_fraction),
+            float(self.flying_probability), float(self.kinect_coeff), abs(float(intrinsics.fx)) * self.baseline_m,
+            float(self.sigma_disp_px), float(self.subpixel_steps), float(self.tof_a_m), float(self.tof_b),
+            float(self.tof_edge), float(self.tof_edge_missing), float(intrinsics.cx), float(intrinsics.cy),
+            1.0 / max(corner * corner, 1e-12), out, out_lab,
+        )
+        return out, out_lab
 
-        flying = self._flying_mask(z, valid) & (u_fly < self.flying_probability)
-        radius = self.radius_map(intrinsics) if self.name == "tof" else 0.0
-        focal = abs(float(intrinsics.fx))
-        if self.name == "kinect" or self.name == "tof":
-            out = out + gauss * self.sigma_m(np.where(valid, z, 0.0), radius, focal)
-        elif self.name == "stereo":
-            fb = focal * self.baseline_m
-            with np.errstate(divide="ignore", invalid="ignore"):
-                disp = fb / out + gauss * self.sigma_disp_px
-                disp = np.round(disp * self.subpixel_steps) / self.subpixel_steps
-                out = np.where(disp > 0, fb / disp, np.nan)
-        if np.any(flying):
-            near = self._nearer_neighbour(z)
-            mixed = near + (0.1 + 0.8 * a_fly) * (z - near)
-            out = np.where(flying, mixed, out)
-
-        p_miss = np.full((H, W), self.missing_fraction)
-        if self.name == "tof":
-            p_miss = p_miss + self.tof_edge_missing * radius**4
-        missing = u_miss < p_miss
-        with np.errstate(invalid="ignore"):
-            in_range = (out >= self.min_range_m) & (out <= self.max_range_m) & (z <= self.max_range_m)
-        keep = valid & in_range & ~missing & np.isfinite(out)
-        out = np.where(keep, out, np.nan).astype(np.float32)
-        lab = np.where(keep & ~flying, lab, 0).astype(np.int32)
-        return out, lab
-
-    def _nearer_neighbour(self, z: np.ndarray) -> np.ndarray:
-        """(H, W) the smallest true depth among the 4 neighbours (inf where none)."""
+    @staticmethod
+    def nearer_neighbour(z: np.ndarray) -> np.ndarray:
+        """(H, W) the smallest depth among each pixel's 4 neighbours (inf where none): the near side of a jump."""
         zz = np.where(np.isfinite(z), z, np.inf)
         pad = np.pad(zz, 1, constant_values=np.inf)
         return np.minimum.reduce([pad[:-2, 1:-1], pad[2:, 1:-1], pad[1:-1, :-2], pad[1:-1, 2:]])
-
-    def _flying_mask(self, z: np.ndarray, valid: np.ndarray) -> np.ndarray:
-        """Background pixels next to a nearer surface (a depth jump of more than ``discontinuity_rel``)."""
-        if self.flying_probability <= 0:
-            return np.zeros(z.shape, dtype=bool)
-        near = self._nearer_neighbour(z)
-        with np.errstate(invalid="ignore"):
-            return valid & np.isfinite(near) & (near < z * (1.0 - self.discontinuity_rel))
 
 
 _PRESETS = {

@@ -182,11 +182,17 @@ def test_noise_has_dropouts_and_flying_pixels():
     depth, labels = render(scene, intr, T)
     model = make_noise("kinect", missing_fraction=0.05, flying_probability=1.0)
     noisy, lab = model.apply(depth, labels, intr, np.random.default_rng(0))
-    lost = np.isfinite(depth) & ~np.isfinite(noisy)
-    assert 0.04 < lost.mean() < 0.12  # 5 % dropouts plus range limits
+    near = model.nearer_neighbour(depth.astype(np.float64))
+    jump = np.isfinite(depth) & (near < depth * (1 - model.discontinuity_rel))
+    # Dropouts: 5 % of the pixels well inside the range (binomial, 4 sigma).
+    inside = np.isfinite(depth) & (depth > model.min_range_m + 0.1) & (depth < model.max_range_m - 0.5) & ~jump
+    lost = ~np.isfinite(noisy[inside])
+    p, n = 0.05, inside.sum()
+    assert n > 5000 and abs(lost.mean() - p) < 4 * np.sqrt(p * (1 - p) / n)
+    # Beyond the range: nothing.
+    assert not np.isfinite(noisy[np.isfinite(depth) & (depth > model.max_range_m + 0.5)]).any()
     # Flying pixels: valid, unlabelled, strictly between the two surfaces of a discontinuity.
-    near = model._nearer_neighbour(depth.astype(np.float64))
-    cand = np.isfinite(depth) & (near < depth * (1 - model.discontinuity_rel)) & np.isfinite(noisy)
+    cand = jump & np.isfinite(noisy)
     assert cand.sum() > 20
     assert np.all(lab[cand] == 0)
     assert np.all((noisy[cand] > near[cand]) & (noisy[cand] < depth[cand]))
