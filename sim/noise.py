@@ -112,8 +112,14 @@ class NoiseModel:
         lab = np.ascontiguousarray(labels, dtype=np.int32)
         H, W = z.shape
         # Draws in a fixed order, so the result depends on the seed only.
-        gauss = rng.standard_normal((H, W), dtype=np.float32)
-        u_miss = rng.random((H, W), dtype=np.float32)
+        if self.name == "none":
+            gauss = np.zeros((H, W), np.float32)
+        else:
+            gauss = rng.standard_normal((H, W), dtype=np.float32)
+        if self.missing_fraction > 0 or (self.name == "tof" and self.tof_edge_missing > 0):
+            u_miss = rng.random((H, W), dtype=np.float32)
+        else:
+            u_miss = np.ones((H, W), np.float32)  # never below a zero dropout probability
         cand = np.zeros((H, W), dtype=np.bool_)
         n_cand = _k.flying_candidates(z, float(self.discontinuity_rel), cand) if self.flying_probability > 0 else 0
         u_fly = rng.random(n_cand, dtype=np.float32)

@@ -10,6 +10,7 @@ import sim
 from sim.cameras import preset
 from sim.ground_truth import planes_in_camera, visible_planes, visible_planes_with_ids
 from sim.noise import make_noise
+from sim.reference import reference_render
 from sim.render import render
 from sim.scenes import SCENE_NAMES, make_scene
 from sim.trajectories import pose_from, random_views
@@ -22,67 +23,6 @@ def _rays(intr):
     return np.stack([(u - intr.cx) / intr.fx, (v - intr.cy) / intr.fy, np.ones(u.shape)], axis=-1)
 
 
-def _reference_render(scene, intr, T_world_cam, near=0.05):
-    """Per pixel, per polygon: ray-plane intersection and an inside test in 3-D; clutter solved analytically."""
-    R, t = T_world_cam[:3, :3], T_world_cam[:3, 3]
-    rays = _rays(intr).reshape(-1, 3)
-    best = np.full(len(rays), np.inf)
-    lab = np.zeros(len(rays), np.int32)
-    n_cam, d_cam = planes_in_camera(scene, T_world_cam)
-    for q in range(scene.n_polygons):
-        row = scene.poly_plane[q]
-        n, d = n_cam[row], d_cam[row]
-        verts = (scene.poly_vertices[scene.poly_ptr[q] : scene.poly_ptr[q + 1]] - t) @ R  # camera frame
-        with np.errstate(divide="ignore", invalid="ignore"):
-            z = -d / (rays @ n)
-        p = rays * z[:, None]
-        inside = np.ones(len(rays), bool)
-        sides = []
-        for i in range(len(verts)):
-            e = verts[(i + 1) % len(verts)] - verts[i]
-            sides.append(np.cross(e, p - verts[i]) @ n)
-        sides = np.array(sides)
-        tol = 1e-9
-        inside = np.all(sides >= -tol, axis=0) | np.all(sides <= tol, axis=0)
-        ok = inside & np.isfinite(z) & (z > near) & (z < best)
-        best[ok] = z[ok]
-        lab[ok] = scene.plane_ids[row]
-    centre = t
-    dirs = rays @ R.T  # world directions, parameter = camera z
-    for x, y, z0, z1, r in scene.cylinders:
-        q = centre[:2] - (x, y)
-        a = (dirs[:, :2] ** 2).sum(1)
-        b = 2 * dirs[:, :2] @ q
-        c = q @ q - r * r
-        disc = b * b - 4 * a * c
-        with np.errstate(invalid="ignore", divide="ignore"):
-            tt = (-b - np.sqrt(disc)) / (2 * a)
-            hz = centre[2] + tt * dirs[:, 2]
-            side = np.where((disc >= 0) & (tt > near) & (hz >= z0) & (hz <= z1), tt, np.inf)
-            caps = []
-            for cz in (z0, z1):
-                tc = (cz - centre[2]) / dirs[:, 2]
-                h = centre[:2] + tc[:, None] * dirs[:, :2] - (x, y)
-                caps.append(np.where((tc > near) & ((h**2).sum(1) <= r * r), tc, np.inf))
-        hit = np.minimum(side, np.minimum(*caps))
-        ok = hit < best
-        best[ok] = hit[ok]
-        lab[ok] = 0
-    for x, y, z, r in scene.spheres:
-        q = centre - (x, y, z)
-        a = (dirs**2).sum(1)
-        b = 2 * dirs @ q
-        c = q @ q - r * r
-        disc = b * b - 4 * a * c
-        with np.errstate(invalid="ignore"):
-            tt = (-b - np.sqrt(disc)) / (2 * a)
-        ok = (disc >= 0) & (tt > near) & (tt < best)
-        best[ok] = tt[ok]
-        lab[ok] = 0
-    best[~np.isfinite(best)] = np.nan
-    return best.reshape(intr.shape), lab.reshape(intr.shape)
-
-
 @pytest.mark.parametrize("name", ["living_room", "office"])
 def test_renderer_matches_numpy_reference(name):
     scene = make_scene(name)
@@ -92,7 +32,7 @@ def test_renderer_matches_numpy_reference(name):
     poses = np.concatenate([poses, pose_from(0.4, 0.8, 1.2, np.radians(200), np.radians(-35))[None]])
     for T in poses:
         depth, labels = render(scene, intr, T)
-        ref_d, ref_l = _reference_render(scene, intr, T)
+        ref_d, ref_l = reference_render(scene, intr, T)
         assert np.array_equal(np.isnan(depth), np.isnan(ref_d))
         np.testing.assert_allclose(depth, ref_d, rtol=1e-5, atol=1e-6, equal_nan=True)
         # Labels may differ only on ties (pixel centres on an edge shared by polygons of equal depth).
