@@ -14,6 +14,7 @@ import click
 # name -> "module:attribute" of a click command or group.
 COMMANDS: dict[str, str] = {
     "config": "reloc.commands.config_cmd:config",
+    "firmware-sim": "firmware_bridge.cli:firmware_sim",
     "sim": "sim.cli:sim",
 }
 
