@@ -66,12 +66,12 @@ class Roadmap:
     """A probabilistic roadmap: free sample points (plus the doorway centres) joined by collision-free edges."""
 
     def __init__(self, scene: Scene, rng: np.random.Generator, clearance_m: float = 0.3,
-                 n_nodes: int | None = None, k_neighbours: int = 10, max_edge_m: float = 4.0) -> None:
+                 n_nodes: int | None = None, k_neighbours: int = 12, max_edge_m: float = 4.0) -> None:
         self.scene = scene
         self.clearance_m = clearance_m
         rooms = scene.rooms
         area = float(((rooms[:, 2] - rooms[:, 0]) * (rooms[:, 3] - rooms[:, 1])).sum())
-        n = n_nodes or int(np.clip(3 * area, 40, 800))
+        n = n_nodes or int(np.clip(3 * area, 40, 4000))
         nodes = [sample_free(scene, rng, n, clearance_m)]
         # Doorways: their centre and a point on either side, so paths between rooms exist.
         for x0, y0, x1, y1, axis in scene.passages:
@@ -82,17 +82,18 @@ class Roadmap:
             nodes.append(cand[is_free(scene, cand, clearance_m)])
         self.nodes = np.concatenate(nodes)
         m = len(self.nodes)
-        dist = np.linalg.norm(self.nodes[:, None] - self.nodes[None], axis=2)
         self.adj: list[list[tuple[int, float]]] = [[] for _ in range(m)]
+        k = min(k_neighbours, m - 1)
         for i in range(m):
-            order = np.argsort(dist[i])[1 : k_neighbours + 1]
-            for j in order:
+            dist = np.linalg.norm(self.nodes - self.nodes[i], axis=1)
+            near = np.argpartition(dist, k)[: k + 1]
+            for j in near[np.argsort(dist[near])]:
                 j = int(j)
-                if dist[i, j] > max_edge_m or any(k == j for k, _ in self.adj[i]):
+                if j == i or dist[j] > max_edge_m or any(q == j for q, _ in self.adj[i]):
                     continue
                 if segment_free(scene, self.nodes[i], self.nodes[j], clearance_m):
-                    self.adj[i].append((j, float(dist[i, j])))
-                    self.adj[j].append((i, float(dist[i, j])))
+                    self.adj[i].append((j, float(dist[j])))
+                    self.adj[j].append((i, float(dist[j])))
         self.component = self._components()
 
     def _components(self) -> np.ndarray:

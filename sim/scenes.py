@@ -430,7 +430,7 @@ def _office(seed: int) -> Scene:
         b.cylinder(dx - 0.1, 1.3, 0.0, 0.48, 0.26)  # office chair, as clutter
     b.box(4.75, 2.8, 0.4, 1.0, 0.0, 2.0)  # tall shelf
     b.box(2.5, 3.7, 1.2, 0.5, 0.0, 1.1)  # sideboard
-    b.cylinder(0.4, 3.6, 0.0, 0.35, 0.15)  # bin
+    b.cylinder(0.4, 1.3, 0.0, 0.35, 0.15)  # bin
     b.plant(0.45, 0.4)
     return b.build()
 
@@ -559,12 +559,34 @@ def _symmetric_room(seed: int) -> Scene:
 
 
 def _random_room_contents(b: SceneBuilder, rng: np.random.Generator, room, height) -> None:
+    """Random boxes, tables, a ramp, a tilted panel and clutter in ``room``, keeping doorway approaches clear (so
+    every room stays reachable). Call after the room's doorways exist."""
     x0, y0, x1, y1 = room
-    n_boxes = int(rng.integers(2, 6))
-    for _ in range(n_boxes):
+    clear = [(px0 - 0.5, py0 - 0.5, px1 + 0.5, py1 + 0.5) for px0, py0, px1, py1, _ in b.passages]
+    # A walkway from each doorway of this room to its centre (an L: across, then along), so furniture never
+    # cuts the room in two for a walker with 0.35 m clearance.
+    mx, my, hw = (x0 + x1) / 2, (y0 + y1) / 2, 0.45
+    for px0, py0, px1, py1, _ in b.passages:
+        if px1 < x0 - 0.7 or px0 > x1 + 0.7 or py1 < y0 - 0.7 or py0 > y1 + 0.7:
+            continue
+        dx, dy = min(max((px0 + px1) / 2, x0), x1), min(max((py0 + py1) / 2, y0), y1)
+        clear.append((min(dx, mx) - hw, dy - hw, max(dx, mx) + hw, dy + hw))
+        clear.append((mx - hw, min(dy, my) - hw, mx + hw, max(dy, my) + hw))
+
+    def blocked(fx0, fy0, fx1, fy1):
+        return any(fx0 < cx1 and fx1 > cx0 and fy0 < cy1 and fy1 > cy0 for cx0, cy0, cx1, cy1 in clear)
+
+    def attempt(draw, tries=20):
+        """Draw placements until one misses the doorway zones; None when none did."""
+        for _ in range(tries):
+            item = draw()
+            if not blocked(*item[0]):
+                return item
+        return None
+
+    def draw_box():
         sx, sy = rng.uniform(0.4, 1.6), rng.uniform(0.35, 0.9)
-        along_x = rng.random() < 0.5
-        if not along_x:
+        if rng.random() < 0.5:
             sx, sy = sy, sx
         # Against a wall (2 cm gap, no z-fighting) or free-standing.
         side = int(rng.integers(0, 5))
@@ -578,23 +600,46 @@ def _random_room_contents(b: SceneBuilder, rng: np.random.Generator, room, heigh
             cy = y0 + sy / 2 + 0.02
         elif side == 3:
             cy = y1 - sy / 2 - 0.02
-        if rng.random() < 0.3:
-            b.table(cx, cy, sx, sy, height=float(rng.uniform(0.45, 0.8)))
+        is_table = rng.random() < 0.3
+        top = float(rng.uniform(0.45, 0.8)) if is_table else float(rng.uniform(0.4, min(2.1, height - 0.3)))
+        return (cx - sx / 2, cy - sy / 2, cx + sx / 2, cy + sy / 2), cx, cy, sx, sy, is_table, top
+
+    for _ in range(int(rng.integers(2, 6))):
+        item = attempt(draw_box)
+        if item is None:
+            continue
+        _, cx, cy, sx, sy, is_table, top = item
+        if is_table:
+            b.table(cx, cy, sx, sy, height=top)
         else:
-            b.box(cx, cy, sx, sy, 0.0, float(rng.uniform(0.4, min(2.1, height - 0.3))))
+            b.box(cx, cy, sx, sy, 0.0, top)
+
+    def draw_disc(margin, r):
+        x, y = rng.uniform(x0 + margin, x1 - margin), rng.uniform(y0 + margin, y1 - margin)
+        return (x - r, y - r, x + r, y + r), x, y
+
     if rng.random() < 0.6:
-        b.wedge(rng.uniform(x0 + 1.0, x1 - 1.0), rng.uniform(y0 + 1.0, y1 - 1.0), 1.0, 0.8,
-                float(rng.uniform(0.1, 0.3)), yaw=float(rng.uniform(0, 2 * math.pi)))
+        rise, yaw = float(rng.uniform(0.1, 0.3)), float(rng.uniform(0, 2 * math.pi))
+        item = attempt(lambda: draw_disc(1.0, math.hypot(0.5, 0.4)))
+        if item is not None:
+            b.wedge(item[1], item[2], 1.0, 0.8, rise, yaw=yaw)
     if rng.random() < 0.5:
-        b.tilted_panel(rng.uniform(x0 + 1.0, x1 - 1.0), rng.uniform(y0 + 1.0, y1 - 1.0), float(rng.uniform(0.3, 1.0)),
-                       0.8, 0.6, yaw=float(rng.uniform(0, 2 * math.pi)), tilt=float(rng.uniform(0.1, 0.5)))
+        z, yaw, tilt = float(rng.uniform(0.3, 1.0)), float(rng.uniform(0, 2 * math.pi)), float(rng.uniform(0.1, 0.5))
+        item = attempt(lambda: draw_disc(1.0, 0.45))
+        if item is not None:
+            b.tilted_panel(item[1], item[2], z, 0.8, 0.6, yaw=yaw, tilt=tilt)
+            b.obstacles.append(item[0])
     for _ in range(int(rng.integers(1, 4))):
-        x, y = rng.uniform(x0 + 0.4, x1 - 0.4), rng.uniform(y0 + 0.4, y1 - 0.4)
-        if rng.random() < 0.5:
-            b.cylinder(x, y, 0.0, float(rng.uniform(0.3, 1.2)), float(rng.uniform(0.08, 0.3)))
+        is_cyl = rng.random() < 0.5
+        r = float(rng.uniform(0.08, 0.3)) if is_cyl else float(rng.uniform(0.1, 0.3))
+        top = float(rng.uniform(0.3, 1.2))
+        item = attempt(lambda: draw_disc(0.4, r))
+        if item is None:
+            continue
+        if is_cyl:
+            b.cylinder(item[1], item[2], 0.0, top, r)
         else:
-            r = float(rng.uniform(0.1, 0.3))
-            b.sphere(x, y, r, r)
+            b.sphere(item[1], item[2], r, r)
 
 
 def _random(seed: int) -> Scene:
@@ -633,6 +678,7 @@ def _building(seed: int) -> Scene:
     n_per_side = 9
     room_w = 5.0
     length = n_per_side * (room_w + WALL_T) - WALL_T
+    corridors = []
     for wing in range(2):
         y_base = wing * (2 * 5.0 + 2.4 + 4 * WALL_T + 3.0)
         corr = (0.0, y_base + 5.0 + WALL_T, length, y_base + 5.0 + WALL_T + 2.4)
@@ -651,8 +697,17 @@ def _building(seed: int) -> Scene:
             b.doorway("y", corr[3], north[1], dx)
             north_doors.append((dx, DOOR_W, DOOR_H))
             _random_room_contents(b, rng, north, h)
-        b.room(*corr, h, openings={"y-": south_doors, "y+": north_doors, "x-": [(corr[1] + 1.2, DOOR_W, DOOR_H)]})
+        b.room(*corr, h, openings={"y-": south_doors, "y+": north_doors, "x-": [(corr[1] + 1.2, DOOR_W, DOOR_H)],
+                                   "x+": [((corr[1] + corr[3]) / 2, 1.2, DOOR_H)]})
         b.closed_door("x-", corr, corr[1] + 1.2)
+        corridors.append(corr)
+    # A hall along the east end joins the two wings' corridors.
+    c0, c1 = corridors
+    link = (length + WALL_T, c0[1], length + WALL_T + 2.4, c1[3])
+    mids = [((c[1] + c[3]) / 2, 1.2, DOOR_H) for c in corridors]
+    b.room(*link, h, openings={"x-": mids})
+    for yc, w, _ in mids:
+        b.doorway("x", length, link[0], yc, width=w)
     return b.build()
 
 

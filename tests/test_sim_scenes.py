@@ -116,3 +116,36 @@ def test_random_views_look_at_structure():
     # Not inside any room's furniture and inside some room.
     assert np.all((T[:, 2, 3] >= 0.3) & (T[:, 2, 3] <= 1.8))
     assert len({tuple(np.round(t[:3, 3], 3)) for t in T}) == 6
+
+
+@pytest.mark.parametrize("name", SCENE_NAMES)
+def test_every_room_is_reachable(name):
+    """The roadmap's largest connected piece of free space enters every room (no room cut off by furniture)."""
+    from sim.free_space import Roadmap
+
+    scene = make_scene(name)
+    rm = Roadmap(scene, np.random.default_rng(0), clearance_m=0.35)
+    pts = rm.nodes[rm.largest_component()]
+    for x0, y0, x1, y1, _ in scene.rooms:
+        assert np.any((pts[:, 0] >= x0) & (pts[:, 0] <= x1) & (pts[:, 1] >= y0) & (pts[:, 1] <= y1))
+
+
+def test_people_walk_and_occlude():
+    from sim.camera import people_tracks
+    from sim.render import render
+    from sim.trajectories import pose_from
+
+    scene = make_scene("living_room")
+    tracks = people_tracks(scene, 90, 2, seed=1)
+    assert tracks.shape == (90, 2, 5)
+    assert is_free(scene, tracks[:, :, :2].reshape(-1, 2), 0.25).all()
+    speed = np.linalg.norm(np.diff(tracks[:, :, :2], axis=0), axis=2) * 30
+    assert speed.max() <= 1.0 + 1e-9 and speed.sum() > 0
+    intr = preset("kinect").scaled(80, 60)
+    T = pose_from(1.0, 2.0, 1.2, 0.0)  # looking along +x
+    d0, l0 = render(scene, intr, T)
+    person = np.array([[2.5, 2.0, 0.0, 1.75, 0.25]])
+    d1, l1 = render(scene, intr, T, extra_cylinders=person)
+    r, c = 30, 40
+    assert l0[r, c] > 0 and d0[r, c] > 2.0
+    assert l1[r, c] == 0 and abs(d1[r, c] - 1.25) < 0.01  # the front of the cylinder: 2.5 - 0.25 - 1.0
