@@ -160,6 +160,17 @@ class MatchingConfig(_Section):
         50.0, gt=1, description="Reject triplets whose translation system is worse conditioned than this."
     )
     max_submap_planes: int = Field(30, ge=3, description="Largest planes of a submap considered at all.")
+    degenerate_min_angle_deg: float = Field(
+        15.0, gt=0, le=60,
+        description="Normals closer than this (or than 180 minus this) make a triplet degenerate (always checked).",
+    )
+    min_triple_product: float = Field(
+        0.2, ge=0, le=1,
+        description="|n0 . (n1 x n2)| of a triplet's normals at least this: they must span 3-D space (translation).",
+    )
+    max_candidates: int = Field(
+        400_000, ge=1000, description="Map triplets kept per round at most (more are cut and counted as truncated)."
+    )
 
 
 class EvaluationConfig(_Section):
@@ -169,7 +180,21 @@ class EvaluationConfig(_Section):
     projection_inlier_m: float = Field(0.08, gt=0, description="A projected sample is an inlier within this distance.")
     min_projection_ratio: float = Field(0.5, ge=0, le=1, description="Pairs below this inlier fraction do not match.")
     overlap: bool = Field(True, description="Plane overlap by centre and radius, Eq. 11 (off = VR-NO).")
-    min_overlap: float = Field(0.3, ge=0, le=1, description="Pairs below this overlap do not match.")
+    min_overlap: float = Field(
+        0.7, ge=0, le=1,
+        description="Pairs below this overlap do not match: the fraction of the submap plane's samples falling within "
+        "the map plane's extent (its samples on a grid of extent_cell_m).",
+    )
+    extent_cell_m: float = Field(0.25, gt=0, description="Grid of the map's spatial hash (overlap, Eq. 11).")
+    verify_samples_per_plane: int = Field(
+        12, ge=1, le=256, description="Samples per submap plane (farthest-point) used to verify a transform."
+    )
+    min_explained_fraction: float = Field(
+        0.85, ge=0, le=1,
+        description="A pose must explain this fraction of the submap, each plane weighing sqrt(area): unexplained "
+        "large planes and furniture count against it.",
+    )
+    refine_iterations: int = Field(2, ge=0, le=10, description="Least-squares refinements of the winning pose.")
     scene_uniqueness: bool = Field(True, description="Require tau_m matched planes (off = VR-NS).")
     min_matched_planes: int = Field(5, ge=3, description="tau_m: matched planes a pose needs (paper: 5).")
     match_max_angle_deg: float = Field(5.0, gt=0, description="A submap plane matches a map plane within this angle...")

@@ -1,0 +1,923 @@
+"""Numba kernels of plane matching: arrays in, arrays out, no config, no classes.
+
+- a Jacobi eigen solver for small symmetric matrices (``np.linalg.eigh`` needs SciPy inside numba);
+- the rotation of plane-normal pairs by the quaternion eigen method (Horn; the paper's Eq. 6, 8-9) and the
+  translation from plane offsets (Eq. 7), batched over candidate triplets;
+- the candidate join (submap triplet -> map triplets through the pair index) and the brute-force reference;
+- verification of a transform against the map (projection inliers Eq. 10, overlap Eq. 11, scene uniqueness);
+- the kernel density over SE(3) (Eq. 14) and the greedy grouping of poses into modes.
+
+Status codes of a triplet transform (``TRANSFORM_*``) are shared with the Python layer.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from reloc._numba import njit, register_warmup
+
+TRANSFORM_OK = 0
+TRANSFORM_PARALLEL = 1  # two normals of the triplet nearly parallel
+TRANSFORM_ILL_CONDITIONED = 2  # the translation system is ill-conditioned (normals nearly coplanar)
+TRANSFORM_INCONSISTENT = 3  # the rotation cannot align the three normal pairs (mirror image, bad angles)
+
+_KEY_OFFSET = 1 << 20
+_KEY_MASK = (1 << 21) - 1
+
+
+# ---------------------------------------------------------------------------------------------------------------------
+# Small dense linear algebra
+
+
+@njit
+def jacobi_eigh(A, V, n):
+    """Eigen-decompose the symmetric ``A[:n, :n]`` in place by cyclic Jacobi rotations.
+
+    On return the eigenvalues are on the diagonal of ``A`` (unsorted) and the eigenvectors are the columns of
+    ``V[:n, :n]``. float64 arrays, no allocation.
+    """
+    for i in range(n):
+        for j in range(n):
+            V[i, j] = 1.0 if i == j else 0.0
+    scale = 0.0
+    for i in range(n):
+        for j in range(n):
+            scale += A[i, j] * A[i, j]
+    if scale == 0.0:
+        return
+    for _sweep in range(60):
+        off = 0.0
+        for p in range(n):
+            for q in range(p + 1, n):
+                off += A[p, q] * A[p, q]
+        if off <= 1e-30 * scale:
+            return
+        for p in range(n - 1):
+            for q in range(p + 1, n):
+                apq = A[p, q]
+                if apq == 0.0:
+                    continue
+                theta = (A[q, q] - A[p, p]) / (2.0 * apq)
+                sgn = 1.0 if theta >= 0.0 else -1.0
+                t = sgn / (abs(theta) + math.sqrt(theta * theta + 1.0))
+                c = 1.0 / math.sqrt(t * t + 1.0)
+                s = t * c
+                for k in range(n):
+                    akp = A[k, p]
+                    akq = A[k, q]
+                    A[k, p] = c * akp - s * akq
+                    A[k, q] = s * akp + c * akq
+                for k in range(n):
+                    apk = A[p, k]
+                    aqk = A[q, k]
+                    A[p, k] = c * apk - s * aqk
+                    A[q, k] = s * apk + c * aqk
+                for k in range(n):
+                    vkp = V[k, p]
+                    vkq = V[k, q]
+                    V[k, p] = c * vkp - s * vkq
+                    V[k, q] = s * vkp + c * vkq
+
+
+@njit
+def rotation_from_pairs(n_from, n_to, weights, count, R_out, N, V):
+    """Rotation ``R`` maximizing ``sum w_k n_to[k] . (R n_from[k])`` (Horn's quaternion eigen method).
+
+    ``n_from``, ``n_to`` (>= count, 3) float64 unit vectors, ``weights`` (>= count,); ``R_out`` (3, 3) receives the
+    rotation; ``N`` and ``V`` are (4, 4) scratch arrays. Returns the gap between the two largest eigenvalues of
+    Horn's matrix divided by the total weight (0 means the rotation is not determined).
+    """
+    sxx = sxy = sxz = syx = syy = syz = szx = szy = szz = 0.0
+    wsum = 0.0
+    for k in range(count):
+        w = weights[k]
+        a0, a1, a2 = n_from[k, 0], n_from[k, 1], n_from[k, 2]
+        b0, b1, b2 = n_to[k, 0], n_to[k, 1], n_to[k, 2]
+        sxx += w * a0 * b0
+        sxy += w * a0 * b1
+        sxz += w * a0 * b2
+        syx += w * a1 * b0
+        syy += w * a1 * b1
+        syz += w * a1 * b2
+        szx += w * a2 * b0
+        szy += w * a2 * b1
+        szz += w * a2 * b2
+        wsum += w
+    N[0, 0] = sxx + syy + szz
+    N[0, 1] = syz - szy
+    N[0, 2] = szx - sxz
+    N[0, 3] = sxy - syx
+    N[1, 1] = sxx - syy - szz
+    N[1, 2] = sxy + syx
+    N[1, 3] = szx + sxz
+    N[2, 2] = -sxx + syy - szz
+    N[2, 3] = syz + szy
+    N[3, 3] = -sxx - syy + szz
+    for i in range(4):
+        for j in range(i):
+            N[i, j] = N[j, i]
+    jacobi_eigh(N, V, 4)
+    best = 0
+    for i in range(1, 4):
+        if N[i, i] > N[best, best]:
+            best = i
+    second = -1e300
+    for i in range(4):
+        if i != best and N[i, i] > second:
+            second = N[i, i]
+    w_ = V[0, best]
+    x = V[1, best]
+    y = V[2, best]
+    z = V[3, best]
+    norm = math.sqrt(w_ * w_ + x * x + y * y + z * z)
+    w_ /= norm
+    x /= norm
+    y /= norm
+    z /= norm
+    R_out[0, 0] = 1.0 - 2.0 * (y * y + z * z)
+    R_out[0, 1] = 2.0 * (x * y - z * w_)
+    R_out[0, 2] = 2.0 * (x * z + y * w_)
+    R_out[1, 0] = 2.0 * (x * y + z * w_)
+    R_out[1, 1] = 1.0 - 2.0 * (x * x + z * z)
+    R_out[1, 2] = 2.0 * (y * z - x * w_)
+    R_out[2, 0] = 2.0 * (x * z - y * w_)
+    R_out[2, 1] = 2.0 * (y * z + x * w_)
+    R_out[2, 2] = 1.0 - 2.0 * (x * x + y * y)
+    if wsum <= 0.0:
+        return 0.0
+    return (N[best, best] - second) / wsum
+
+
+@njit
+def _angle(a, b):
+    """Angle (radians) between unit rows ``a`` and ``b``."""
+    d = a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+    if d > 1.0:
+        d = 1.0
+    elif d < -1.0:
+        d = -1.0
+    return math.acos(d)
+
+
+@njit
+def _triple(a, b, c):
+    """``a . (b x c)`` of three 3-vectors."""
+    return (
+        a[0] * (b[1] * c[2] - b[2] * c[1]) + a[1] * (b[2] * c[0] - b[0] * c[2]) + a[2] * (b[0] * c[1] - b[1] * c[0])
+    )
+
+
+@njit
+def triplet_transforms(cand, sub_normals, sub_offsets, map_normals, map_offsets, min_angle_rad, max_condition,
+                       max_residual_rad, R_out, t_out, status_out):
+    """Transform ``T_map_sub`` of each candidate triplet.
+
+    ``cand`` (H, 6) int32 rows ``(j0, j1, j2, i0, i1, i2)``: submap planes j matched to map planes i. Rotation by
+    the quaternion eigen method on the three normal pairs, translation by solving ``n_i . t = d_j - d_i`` (Eq. 7).
+    ``R_out`` (H, 3, 3), ``t_out`` (H, 3), ``status_out`` (H,) int8 (``TRANSFORM_*``).
+    """
+    H = cand.shape[0]
+    n_from = np.empty((3, 3))
+    n_to = np.empty((3, 3))
+    w = np.ones(3)
+    R = np.empty((3, 3))
+    N = np.empty((4, 4))
+    V = np.empty((4, 4))
+    M = np.empty((3, 3))
+    VM = np.empty((3, 3))
+    cos_min = math.cos(min_angle_rad)
+    cos_res = math.cos(max_residual_rad)
+    for h in range(H):
+        for k in range(3):
+            j = cand[h, k]
+            i = cand[h, 3 + k]
+            for c in range(3):
+                n_from[k, c] = sub_normals[j, c]
+                n_to[k, c] = map_normals[i, c]
+        status = TRANSFORM_OK
+        # Near-parallel normals on either side: the triplet does not fix the pose.
+        for a in range(3):
+            for b in range(a + 1, 3):
+                da = abs(n_from[a, 0] * n_from[b, 0] + n_from[a, 1] * n_from[b, 1] + n_from[a, 2] * n_from[b, 2])
+                db = abs(n_to[a, 0] * n_to[b, 0] + n_to[a, 1] * n_to[b, 1] + n_to[a, 2] * n_to[b, 2])
+                if da > cos_min or db > cos_min:
+                    status = TRANSFORM_PARALLEL
+        if status == TRANSFORM_OK:
+            rotation_from_pairs(n_from, n_to, w, 3, R, N, V)
+            for k in range(3):
+                rx = R[0, 0] * n_from[k, 0] + R[0, 1] * n_from[k, 1] + R[0, 2] * n_from[k, 2]
+                ry = R[1, 0] * n_from[k, 0] + R[1, 1] * n_from[k, 1] + R[1, 2] * n_from[k, 2]
+                rz = R[2, 0] * n_from[k, 0] + R[2, 1] * n_from[k, 1] + R[2, 2] * n_from[k, 2]
+                if rx * n_to[k, 0] + ry * n_to[k, 1] + rz * n_to[k, 2] < cos_res:
+                    status = TRANSFORM_INCONSISTENT
+        if status == TRANSFORM_OK:
+            # Condition number of the 3x3 system with the map normals as rows, from the eigenvalues of A^T A.
+            for a in range(3):
+                for b in range(3):
+                    s = 0.0
+                    for k in range(3):
+                        s += n_to[k, a] * n_to[k, b]
+                    M[a, b] = s
+            jacobi_eigh(M, VM, 3)
+            lo = min(M[0, 0], min(M[1, 1], M[2, 2]))
+            hi = max(M[0, 0], max(M[1, 1], M[2, 2]))
+            if lo <= 0.0 or math.sqrt(hi / lo) > max_condition:
+                status = TRANSFORM_ILL_CONDITIONED
+        if status == TRANSFORM_OK:
+            # Cramer's rule on A t = b with A rows = map normals.
+            b0 = sub_offsets[cand[h, 0]] - map_offsets[cand[h, 3]]
+            b1 = sub_offsets[cand[h, 1]] - map_offsets[cand[h, 4]]
+            b2 = sub_offsets[cand[h, 2]] - map_offsets[cand[h, 5]]
+            a = n_to
+            det = _triple(a[0], a[1], a[2])
+            c00 = a[1, 1] * a[2, 2] - a[1, 2] * a[2, 1]
+            c01 = a[0, 2] * a[2, 1] - a[0, 1] * a[2, 2]
+            c02 = a[0, 1] * a[1, 2] - a[0, 2] * a[1, 1]
+            c10 = a[1, 2] * a[2, 0] - a[1, 0] * a[2, 2]
+            c11 = a[0, 0] * a[2, 2] - a[0, 2] * a[2, 0]
+            c12 = a[0, 2] * a[1, 0] - a[0, 0] * a[1, 2]
+            c20 = a[1, 0] * a[2, 1] - a[1, 1] * a[2, 0]
+            c21 = a[0, 1] * a[2, 0] - a[0, 0] * a[2, 1]
+            c22 = a[0, 0] * a[1, 1] - a[0, 1] * a[1, 0]
+            t_out[h, 0] = (c00 * b0 + c01 * b1 + c02 * b2) / det
+            t_out[h, 1] = (c10 * b0 + c11 * b1 + c12 * b2) / det
+            t_out[h, 2] = (c20 * b0 + c21 * b1 + c22 * b2) / det
+            for a_ in range(3):
+                for b_ in range(3):
+                    R_out[h, a_, b_] = R[a_, b_]
+        else:
+            for a_ in range(3):
+                t_out[h, a_] = 0.0
+                for b_ in range(3):
+                    R_out[h, a_, b_] = 1.0 if a_ == b_ else 0.0
+        status_out[h] = status
+
+
+# ---------------------------------------------------------------------------------------------------------------------
+# The map index and the candidate join
+
+
+@njit
+def sphere_gap(c0, r0, c1, r1):
+    """Distance between the spheres (centroid, radius) of two planes; 0 when they intersect."""
+    dx = c0[0] - c1[0]
+    dy = c0[1] - c1[1]
+    dz = c0[2] - c1[2]
+    g = math.sqrt(dx * dx + dy * dy + dz * dz) - r0 - r1
+    return g if g > 0.0 else 0.0
+
+
+@njit
+def build_pairs(normals, centroids, radii, lo_rad, hi_rad, check_gap, max_gap):
+    """Ordered pairs ``(i, k)``, ``i != k``, with normal angle in ``[lo, hi]`` and (optionally) sphere gap <= max_gap.
+
+    Returns ``(first (P,) int32, second (P,) int32, angle (P,) float64)`` in row order of ``first``.
+    """
+    n = normals.shape[0]
+    count = 0
+    for i in range(n):
+        for k in range(n):
+            if i == k:
+                continue
+            a = _angle(normals[i], normals[k])
+            if a < lo_rad or a > hi_rad:
+                continue
+            if check_gap and sphere_gap(centroids[i], radii[i], centroids[k], radii[k]) > max_gap:
+                continue
+            count += 1
+    first = np.empty(count, np.int32)
+    second = np.empty(count, np.int32)
+    ang = np.empty(count, np.float64)
+    m = 0
+    for i in range(n):
+        for k in range(n):
+            if i == k:
+                continue
+            a = _angle(normals[i], normals[k])
+            if a < lo_rad or a > hi_rad:
+                continue
+            if check_gap and sphere_gap(centroids[i], radii[i], centroids[k], radii[k]) > max_gap:
+                continue
+            first[m] = i
+            second[m] = k
+            ang[m] = a
+            m += 1
+    return first, second, ang
+
+
+@njit
+def _lower_bound(arr, lo, hi, value):
+    """First index in ``arr[lo:hi]`` (sorted) with ``arr[idx] >= value``."""
+    while lo < hi:
+        mid = (lo + hi) // 2
+        if arr[mid] < value:
+            lo = mid + 1
+        else:
+            hi = mid
+    return lo
+
+
+@njit
+def _triplet_ok(j0, j1, j2, i0, i1, i2, sub_normals, sub_areas, map_normals, map_centroids, map_radii, map_areas,
+                map_is_ground, t01, t02, t12, det_s, tol, require_ground, check_gap, max_gap, check_area,
+                min_area_ratio, min_triple):
+    """Every per-triplet test of the selection, shared by the indexed join and the brute force."""
+    if i0 == i1 or i0 == i2 or i1 == i2:
+        return False
+    if require_ground and not map_is_ground[i0]:
+        return False
+    if check_area:
+        if map_areas[i0] < min_area_ratio * sub_areas[j0]:
+            return False
+        if map_areas[i1] < min_area_ratio * sub_areas[j1]:
+            return False
+        if map_areas[i2] < min_area_ratio * sub_areas[j2]:
+            return False
+    if abs(_angle(map_normals[i1], map_normals[i2]) - t12) > tol:
+        return False
+    if abs(_angle(map_normals[i0], map_normals[i1]) - t01) > tol:
+        return False
+    if abs(_angle(map_normals[i0], map_normals[i2]) - t02) > tol:
+        return False
+    if check_gap:
+        if sphere_gap(map_centroids[i1], map_radii[i1], map_centroids[i2], map_radii[i2]) > max_gap:
+            return False
+        if sphere_gap(map_centroids[i0], map_radii[i0], map_centroids[i1], map_radii[i1]) > max_gap:
+            return False
+        if sphere_gap(map_centroids[i0], map_radii[i0], map_centroids[i2], map_radii[i2]) > max_gap:
+            return False
+    det_m = _triple(map_normals[i0], map_normals[i1], map_normals[i2])
+    if abs(det_m) < min_triple or det_m * det_s <= 0.0:
+        return False
+    return True
+
+
+@njit
+def join_candidates(sub_trip, sub_normals, sub_areas, map_normals, map_centroids, map_radii, map_areas, map_is_ground,
+                    pair_first, pair_second, pair_angle, adj_ptr, adj_ids, adj_angle, tol, require_ground, check_gap,
+                    max_gap, check_area, min_area_ratio, min_triple, out):
+    """Map triplets agreeing with each submap triplet, found through the pair index.
+
+    ``sub_trip`` (T, 3) int32 ``(j0, j1, j2)``; the pairs ``(pair_first, pair_second)`` are sorted by
+    ``pair_angle``; ``adj_*`` is the same relation per plane (CSR, each row sorted by angle). For the pair
+    ``(j1, j2)`` the map pairs ``(i1, i2)`` come from a binary search on the pair angle, and ``i0`` from the rows of
+    ``i1`` with the angle of ``(j0, j1)``; every candidate then passes :func:`_triplet_ok`.
+    Writes rows ``(j0, j1, j2, i0, i1, i2)`` into ``out`` (cap, 6) int32 and returns
+    ``(count, generated)`` where ``generated`` counts the pairs looked at; ``count > cap`` means the output was cut.
+    """
+    cap = out.shape[0]
+    count = 0
+    generated = 0
+    for t in range(sub_trip.shape[0]):
+        j0 = sub_trip[t, 0]
+        j1 = sub_trip[t, 1]
+        j2 = sub_trip[t, 2]
+        t01 = _angle(sub_normals[j0], sub_normals[j1])
+        t02 = _angle(sub_normals[j0], sub_normals[j2])
+        t12 = _angle(sub_normals[j1], sub_normals[j2])
+        det_s = _triple(sub_normals[j0], sub_normals[j1], sub_normals[j2])
+        p_lo = _lower_bound(pair_angle, 0, pair_angle.shape[0], t12 - tol)
+        for p in range(p_lo, pair_angle.shape[0]):
+            if pair_angle[p] > t12 + tol:
+                break
+            i1 = pair_first[p]
+            i2 = pair_second[p]
+            if check_area and (map_areas[i1] < min_area_ratio * sub_areas[j1]
+                               or map_areas[i2] < min_area_ratio * sub_areas[j2]):
+                continue
+            a_lo = _lower_bound(adj_angle, adj_ptr[i1], adj_ptr[i1 + 1], t01 - tol)
+            for q in range(a_lo, adj_ptr[i1 + 1]):
+                if adj_angle[q] > t01 + tol:
+                    break
+                i0 = adj_ids[q]
+                generated += 1
+                if _triplet_ok(j0, j1, j2, i0, i1, i2, sub_normals, sub_areas, map_normals, map_centroids, map_radii,
+                               map_areas, map_is_ground, t01, t02, t12, det_s, tol, require_ground, check_gap,
+                               max_gap, check_area, min_area_ratio, min_triple):
+                    if count < cap:
+                        out[count, 0] = j0
+                        out[count, 1] = j1
+                        out[count, 2] = j2
+                        out[count, 3] = i0
+                        out[count, 4] = i1
+                        out[count, 5] = i2
+                    count += 1
+    return count, generated
+
+
+@njit
+def brute_force_candidates(sub_trip, sub_normals, sub_areas, map_normals, map_centroids, map_radii, map_areas,
+                           map_is_ground, tol, require_ground, check_gap, max_gap, check_area, min_area_ratio,
+                           min_triple, out):
+    """The same candidates as :func:`join_candidates` by enumerating every ordered map triplet (O(N^3) per query).
+
+    The baseline of the latency benchmark and the reference of the index in the tests.
+    Returns ``(count, generated)`` like :func:`join_candidates`.
+    """
+    cap = out.shape[0]
+    n = map_normals.shape[0]
+    count = 0
+    generated = 0
+    for t in range(sub_trip.shape[0]):
+        j0 = sub_trip[t, 0]
+        j1 = sub_trip[t, 1]
+        j2 = sub_trip[t, 2]
+        t01 = _angle(sub_normals[j0], sub_normals[j1])
+        t02 = _angle(sub_normals[j0], sub_normals[j2])
+        t12 = _angle(sub_normals[j1], sub_normals[j2])
+        det_s = _triple(sub_normals[j0], sub_normals[j1], sub_normals[j2])
+        for i0 in range(n):
+            for i1 in range(n):
+                for i2 in range(n):
+                    generated += 1
+                    if _triplet_ok(j0, j1, j2, i0, i1, i2, sub_normals, sub_areas, map_normals, map_centroids,
+                                   map_radii, map_areas, map_is_ground, t01, t02, t12, det_s, tol, require_ground,
+                                   check_gap, max_gap, check_area, min_area_ratio, min_triple):
+                        if count < cap:
+                            out[count, 0] = j0
+                            out[count, 1] = j1
+                            out[count, 2] = j2
+                            out[count, 3] = i0
+                            out[count, 4] = i1
+                            out[count, 5] = i2
+                        count += 1
+    return count, generated
+
+
+# ---------------------------------------------------------------------------------------------------------------------
+# Spatial hash of the map samples (which map planes are near a point)
+
+
+@njit
+def cell_keys(points, cell):
+    """int64 key of the cell of each point (N, 3) on a grid of edge ``cell``."""
+    n = points.shape[0]
+    keys = np.empty(n, np.int64)
+    for k in range(n):
+        ix = int(math.floor(points[k, 0] / cell)) + _KEY_OFFSET
+        iy = int(math.floor(points[k, 1] / cell)) + _KEY_OFFSET
+        iz = int(math.floor(points[k, 2] / cell)) + _KEY_OFFSET
+        keys[k] = (np.int64(ix & _KEY_MASK) << 42) | (np.int64(iy & _KEY_MASK) << 21) | np.int64(iz & _KEY_MASK)
+    return keys
+
+
+@njit
+def dilate_keys(keys, ids):
+    """Each (key, id) repeated into the 27 cells around it: (27 N,) keys and ids."""
+    n = keys.shape[0]
+    out_k = np.empty(27 * n, np.int64)
+    out_i = np.empty(27 * n, np.int32)
+    m = 0
+    for k in range(n):
+        key = keys[k]
+        ix = (key >> 42) & _KEY_MASK
+        iy = (key >> 21) & _KEY_MASK
+        iz = key & _KEY_MASK
+        for dx in range(-1, 2):
+            for dy in range(-1, 2):
+                for dz in range(-1, 2):
+                    out_k[m] = ((ix + dx) << 42) | ((iy + dy) << 21) | (iz + dz)
+                    out_i[m] = ids[k]
+                    m += 1
+    return out_k, out_i
+
+
+@njit
+def _cell_of(x, y, z, cell):
+    ix = int(math.floor(x / cell)) + _KEY_OFFSET
+    iy = int(math.floor(y / cell)) + _KEY_OFFSET
+    iz = int(math.floor(z / cell)) + _KEY_OFFSET
+    return (np.int64(ix & _KEY_MASK) << 42) | (np.int64(iy & _KEY_MASK) << 21) | np.int64(iz & _KEY_MASK)
+
+
+# ---------------------------------------------------------------------------------------------------------------------
+# Verification of transforms
+
+
+@njit
+def verify_transforms(R, t, cand, plane_order, sub_normals, sub_offsets, sub_centroids, sub_areas, vs_ptr, vs_points,
+                      map_normals, map_offsets, map_areas, min_area_ratio, hash_keys, hash_ptr, hash_ids, cell, cos_match, max_offset, inlier_m,
+                      use_projection, min_projection, use_overlap, min_overlap, min_matched, min_explained,
+                      out_match, out_proj, out_over, out_nmatched, out_explained, out_pass):
+    """Check each transform ``T_map_sub = (R[h], t[h])`` against the map.
+
+    For every submap plane j (the three planes of the candidate first, then ``plane_order``), its verification
+    samples are moved into the map; a map plane i is a candidate when its normal is within the match angle and the
+    moved centroid lies within ``max_offset`` of it. With ``use_overlap`` candidates come from the spatial hash
+    (a sample counts toward overlap when it falls near a sample of i: Eq. 11 with the samples standing for the
+    plane's extent), otherwise every map plane is looked at. The projection ratio (Eq. 10) is the fraction of
+    samples within ``inlier_m`` of plane i. j matches its best candidate that clears the enabled thresholds and
+    whose area is at least ``min_area_ratio`` times j's (a map plane holds what any view saw of it).
+    A hypothesis passes when its three triplet planes match, at least ``min_matched`` distinct map planes match
+    (scene uniqueness) and the matched submap planes weigh at least ``min_explained`` of the total, each plane
+    weighing the square root of its area (its extent): large planes count more than clutter, but a floor and a
+    wall cannot hide unexplained furniture.
+
+    Outputs per hypothesis h and submap plane j: ``out_match`` (H, S) int32 map plane or -1, ``out_proj`` and
+    ``out_over`` (H, S) float32 ratios; per hypothesis ``out_nmatched`` int32, ``out_explained`` float64,
+    ``out_pass`` bool. Returns the number of (hypothesis, plane) pairs evaluated.
+    """
+    H = R.shape[0]
+    S = sub_normals.shape[0]
+    N = map_normals.shape[0]
+    MAXC = 32
+    cand_id = np.empty(MAXC, np.int32)
+    cand_over = np.empty(MAXC, np.int32)
+    cand_proj = np.empty(MAXC, np.int32)
+    matched_ids = np.empty(S, np.int32)
+    total_area = 0.0
+    for j in range(S):
+        total_area += math.sqrt(sub_areas[j])
+    n_keys = hash_keys.shape[0]
+    evaluated = 0
+    for h in range(H):
+        for j in range(S):
+            out_match[h, j] = -1
+            out_proj[h, j] = 0.0
+            out_over[h, j] = 0.0
+        n_matched = 0
+        explained = 0.0
+        ok = True
+        processed = 0
+        for step in range(S + 3):
+            if step < 3:
+                j = cand[h, step]
+            else:
+                j = plane_order[step - 3]
+                if j == cand[h, 0] or j == cand[h, 1] or j == cand[h, 2]:
+                    continue
+            evaluated += 1
+            processed += 1
+            # The plane in the map frame.
+            nx = R[h, 0, 0] * sub_normals[j, 0] + R[h, 0, 1] * sub_normals[j, 1] + R[h, 0, 2] * sub_normals[j, 2]
+            ny = R[h, 1, 0] * sub_normals[j, 0] + R[h, 1, 1] * sub_normals[j, 1] + R[h, 1, 2] * sub_normals[j, 2]
+            nz = R[h, 2, 0] * sub_normals[j, 0] + R[h, 2, 1] * sub_normals[j, 1] + R[h, 2, 2] * sub_normals[j, 2]
+            c = sub_centroids[j]
+            cx = R[h, 0, 0] * c[0] + R[h, 0, 1] * c[1] + R[h, 0, 2] * c[2] + t[h, 0]
+            cy = R[h, 1, 0] * c[0] + R[h, 1, 1] * c[1] + R[h, 1, 2] * c[2] + t[h, 1]
+            cz = R[h, 2, 0] * c[0] + R[h, 2, 1] * c[1] + R[h, 2, 2] * c[2] + t[h, 2]
+            n_c = 0
+            s0 = vs_ptr[j]
+            s1 = vs_ptr[j + 1]
+            m_j = s1 - s0
+            if use_overlap:
+                for s in range(s0, s1):
+                    p = vs_points[s]
+                    px = R[h, 0, 0] * p[0] + R[h, 0, 1] * p[1] + R[h, 0, 2] * p[2] + t[h, 0]
+                    py = R[h, 1, 0] * p[0] + R[h, 1, 1] * p[1] + R[h, 1, 2] * p[2] + t[h, 1]
+                    pz = R[h, 2, 0] * p[0] + R[h, 2, 1] * p[1] + R[h, 2, 2] * p[2] + t[h, 2]
+                    key = _cell_of(px, py, pz, cell)
+                    pos = _lower_bound(hash_keys, 0, n_keys, key)
+                    if pos >= n_keys or hash_keys[pos] != key:
+                        continue
+                    for e in range(hash_ptr[pos], hash_ptr[pos + 1]):
+                        i = hash_ids[e]
+                        if map_areas[i] < min_area_ratio * sub_areas[j]:
+                            continue
+                        if nx * map_normals[i, 0] + ny * map_normals[i, 1] + nz * map_normals[i, 2] < cos_match:
+                            continue
+                        if abs(map_normals[i, 0] * cx + map_normals[i, 1] * cy + map_normals[i, 2] * cz
+                               + map_offsets[i]) > max_offset:
+                            continue
+                        slot = -1
+                        for q in range(n_c):
+                            if cand_id[q] == i:
+                                slot = q
+                                break
+                        if slot < 0:
+                            if n_c == MAXC:
+                                continue
+                            slot = n_c
+                            cand_id[slot] = i
+                            cand_over[slot] = 0
+                            cand_proj[slot] = 0
+                            n_c += 1
+                        cand_over[slot] += 1
+                        if abs(map_normals[i, 0] * px + map_normals[i, 1] * py + map_normals[i, 2] * pz
+                               + map_offsets[i]) <= inlier_m:
+                            cand_proj[slot] += 1
+            else:
+                for i in range(N):
+                    if map_areas[i] < min_area_ratio * sub_areas[j]:
+                        continue
+                    if nx * map_normals[i, 0] + ny * map_normals[i, 1] + nz * map_normals[i, 2] < cos_match:
+                        continue
+                    if abs(map_normals[i, 0] * cx + map_normals[i, 1] * cy + map_normals[i, 2] * cz
+                           + map_offsets[i]) > max_offset:
+                        continue
+                    if n_c == MAXC:
+                        break
+                    cand_id[n_c] = i
+                    cand_over[n_c] = m_j
+                    cnt = 0
+                    if use_projection:
+                        for s in range(s0, s1):
+                            p = vs_points[s]
+                            px = R[h, 0, 0] * p[0] + R[h, 0, 1] * p[1] + R[h, 0, 2] * p[2] + t[h, 0]
+                            py = R[h, 1, 0] * p[0] + R[h, 1, 1] * p[1] + R[h, 1, 2] * p[2] + t[h, 1]
+                            pz = R[h, 2, 0] * p[0] + R[h, 2, 1] * p[1] + R[h, 2, 2] * p[2] + t[h, 2]
+                            if abs(map_normals[i, 0] * px + map_normals[i, 1] * py + map_normals[i, 2] * pz
+                                   + map_offsets[i]) <= inlier_m:
+                                cnt += 1
+                    cand_proj[n_c] = cnt
+                    n_c += 1
+            best = -1
+            best_score = -1.0
+            best_p = 0.0
+            best_o = 0.0
+            inv_m = 1.0 / m_j if m_j > 0 else 0.0
+            for q in range(n_c):
+                rp = cand_proj[q] * inv_m
+                ro = cand_over[q] * inv_m
+                if use_projection and rp < min_projection:
+                    continue
+                if use_overlap and ro < min_overlap:
+                    continue
+                score = (rp if use_projection else 0.0) + (ro if use_overlap else 0.0)
+                if score > best_score:
+                    best_score = score
+                    best = q
+                    best_p = rp
+                    best_o = ro
+            if best >= 0:
+                i = cand_id[best]
+                out_match[h, j] = i
+                out_proj[h, j] = best_p if use_projection else 1.0
+                out_over[h, j] = best_o if use_overlap else 1.0
+                seen = False
+                for q in range(n_matched):
+                    if matched_ids[q] == i:
+                        seen = True
+                        break
+                if not seen:
+                    matched_ids[n_matched] = i
+                    n_matched += 1
+                explained += math.sqrt(sub_areas[j])
+            elif step < 3:
+                ok = False
+                break
+            if n_matched + (S - processed) < min_matched:
+                ok = False
+                break
+        out_nmatched[h] = n_matched
+        frac = explained / total_area if total_area > 0.0 else 0.0
+        out_explained[h] = frac
+        out_pass[h] = ok and n_matched >= min_matched and frac >= min_explained
+    return evaluated
+
+
+# ---------------------------------------------------------------------------------------------------------------------
+# Kernel density over SE(3) and modes
+
+
+@njit
+def _log_se3_into(R, t, out):
+    """``out`` (6,) = log of the rigid transform (R, t) as ``[rho, phi]``."""
+    tr = R[0, 0] + R[1, 1] + R[2, 2]
+    vx = R[2, 1] - R[1, 2]
+    vy = R[0, 2] - R[2, 0]
+    vz = R[1, 0] - R[0, 1]
+    s = 0.5 * math.sqrt(vx * vx + vy * vy + vz * vz)
+    cth = 0.5 * (tr - 1.0)
+    theta = math.atan2(s, cth)
+    if theta < 1e-6:
+        px, py, pz = 0.5 * vx, 0.5 * vy, 0.5 * vz
+    elif math.pi - theta < 1e-4:
+        # Axis from the symmetric part near pi.
+        b00 = 0.5 * (R[0, 0] + 1.0)
+        b11 = 0.5 * (R[1, 1] + 1.0)
+        b22 = 0.5 * (R[2, 2] + 1.0)
+        if b00 >= b11 and b00 >= b22:
+            ax, ay, az = b00, 0.5 * (R[0, 1] + R[1, 0]) * 0.5, 0.5 * (R[0, 2] + R[2, 0]) * 0.5
+        elif b11 >= b22:
+            ax, ay, az = 0.5 * (R[1, 0] + R[0, 1]) * 0.5, b11, 0.5 * (R[1, 2] + R[2, 1]) * 0.5
+        else:
+            ax, ay, az = 0.5 * (R[2, 0] + R[0, 2]) * 0.5, 0.5 * (R[2, 1] + R[1, 2]) * 0.5, b22
+        nrm = math.sqrt(ax * ax + ay * ay + az * az)
+        ax /= nrm
+        ay /= nrm
+        az /= nrm
+        if ax * vx + ay * vy + az * vz < 0.0:
+            ax, ay, az = -ax, -ay, -az
+        px, py, pz = ax * theta, ay * theta, az * theta
+    else:
+        f = theta / (2.0 * math.sin(theta))
+        px, py, pz = vx * f, vy * f, vz * f
+    # V^-1 = I - K/2 + coef K^2 with K = hat(phi).
+    if theta < 1e-8:
+        coef = 1.0 / 12.0
+    else:
+        half = 0.5 * theta
+        coef = (1.0 - half * math.cos(half) / math.sin(half)) / (theta * theta)
+    # K t and K K t.
+    kx = py * t[2] - pz * t[1]
+    ky = pz * t[0] - px * t[2]
+    kz = px * t[1] - py * t[0]
+    kkx = py * kz - pz * ky
+    kky = pz * kx - px * kz
+    kkz = px * ky - py * kx
+    out[0] = t[0] - 0.5 * kx + coef * kkx
+    out[1] = t[1] - 0.5 * ky + coef * kky
+    out[2] = t[2] - 0.5 * kz + coef * kkz
+    out[3] = px
+    out[4] = py
+    out[5] = pz
+
+
+@njit
+def relative_log(Ra, ta, Rb, tb, Rrel, trel, out):
+    """``out`` = log(T_a^-1 T_b) (6,), using the (3, 3) and (3,) scratch arrays ``Rrel``, ``trel``."""
+    for r in range(3):
+        for c in range(3):
+            s = 0.0
+            for k in range(3):
+                s += Ra[k, r] * Rb[k, c]
+            Rrel[r, c] = s
+        s = 0.0
+        for k in range(3):
+            s += Ra[k, r] * (tb[k] - ta[k])
+        trel[r] = s
+    _log_se3_into(Rrel, trel, out)
+
+
+@njit
+def kde_density(R, t, weights, info_diag, out):
+    """Eq. 14 at every candidate pose: ``out[a] = sum_b w_b exp(-xi^T I xi)``, ``xi = log(T_a^-1 T_b)``.
+
+    ``R`` (H, 3, 3), ``t`` (H, 3), ``weights`` (H,), ``info_diag`` (6,) the diagonal of the information matrix;
+    ``out`` (H,) (not normalized).
+    """
+    H = R.shape[0]
+    Rrel = np.empty((3, 3))
+    trel = np.empty(3)
+    xi = np.empty(6)
+    for a in range(H):
+        acc = 0.0
+        for b in range(H):
+            if weights[b] == 0.0:
+                continue
+            relative_log(R[a], t[a], R[b], t[b], Rrel, trel, xi)
+            q = 0.0
+            for k in range(6):
+                q += info_diag[k] * xi[k] * xi[k]
+            if q < 50.0:
+                acc += weights[b] * math.exp(-q)
+        out[a] = acc
+
+
+@njit
+def group_poses(R, t, order, max_translation, max_rotation_rad, out_group):
+    """Greedy modes: poses taken in ``order`` join the first earlier group whose leader lies within both
+    thresholds, else start a group. ``out_group`` (H,) int32 receives group ids (0 = the group of ``order[0]``);
+    returns the leaders' indices (G,) int32."""
+    H = R.shape[0]
+    leaders = np.empty(H, np.int32)
+    n_groups = 0
+    cos_max = math.cos(max_rotation_rad)
+    for q in range(H):
+        a = order[q]
+        group = -1
+        for g in range(n_groups):
+            b = leaders[g]
+            dx = t[a, 0] - t[b, 0]
+            dy = t[a, 1] - t[b, 1]
+            dz = t[a, 2] - t[b, 2]
+            if dx * dx + dy * dy + dz * dz > max_translation * max_translation:
+                continue
+            tr = 0.0
+            for r in range(3):
+                for c in range(3):
+                    tr += R[a, r, c] * R[b, r, c]
+            if 0.5 * (tr - 1.0) < cos_max:
+                continue
+            group = g
+            break
+        if group < 0:
+            leaders[n_groups] = a
+            group = n_groups
+            n_groups += 1
+        out_group[a] = group
+    return leaders[:n_groups].copy()
+
+
+@register_warmup
+def _warmup() -> None:
+    """Compile every kernel on a tiny problem: three perpendicular planes matched to themselves."""
+    normals = np.eye(3)
+    offsets = np.array([-1.0, -2.0, -3.0])
+    centroids = -normals * offsets[:, None]
+    radii = np.ones(3)
+    areas = np.ones(3)
+    is_ground = np.array([False, False, True])
+    first, second, ang = build_pairs(normals, centroids, radii, 0.1, 3.0, True, 10.0)
+    order = np.argsort(ang, kind="stable")
+    first, second, ang = first[order], second[order], ang[order]
+    adj_ptr = np.zeros(4, np.int64)
+    for i in first:
+        adj_ptr[i + 1] += 1
+    adj_ptr = np.cumsum(adj_ptr)
+    adj_ids = second.astype(np.int32)
+    adj_ang = ang.copy()
+    trip = np.array([[2, 0, 1]], np.int32)
+    out = np.empty((16, 6), np.int32)
+    join_candidates(trip, normals, areas, normals, centroids, radii, areas, is_ground, first, second, ang, adj_ptr,
+                    adj_ids, adj_ang, 0.1, True, True, 10.0, True, 0.5, 0.2, out)
+    brute_force_candidates(trip, normals, areas, normals, centroids, radii, areas, is_ground, 0.1, True, True, 10.0,
+                           True, 0.5, 0.2, out)
+    cand = np.array([[0, 1, 2, 0, 1, 2]], np.int32)
+    Rs = np.empty((1, 3, 3))
+    ts = np.empty((1, 3))
+    st = np.empty(1, np.int8)
+    triplet_transforms(cand, normals, offsets, normals, offsets, 0.2, 50.0, 0.2, Rs, ts, st)
+    pts = centroids.copy()
+    keys = cell_keys(pts, 0.25)
+    dk, di = dilate_keys(keys, np.arange(3, dtype=np.int32))
+    o = np.argsort(dk, kind="stable")
+    dk, di = dk[o], di[o]
+    uk, starts = np.unique(dk, return_index=True)
+    hptr = np.append(starts, dk.shape[0]).astype(np.int64)
+    vs_ptr = np.arange(4, dtype=np.int64)
+    S = 3
+    om = np.empty((1, S), np.int32)
+    op = np.empty((1, S), np.float32)
+    oo = np.empty((1, S), np.float32)
+    on = np.empty(1, np.int32)
+    oe = np.empty(1)
+    ok = np.empty(1, np.bool_)
+    for use_overlap in (True, False):
+        verify_transforms(Rs, ts, cand, np.arange(3, dtype=np.int32), normals, offsets, centroids, areas, vs_ptr, pts,
+                          normals, offsets, areas, 0.5, uk, hptr, di, 0.25, 0.99, 0.1, 0.05, True, 0.5, use_overlap, 0.3, 3, 0.5,
+                          om, op, oo, on, oe, ok)
+    dens = np.empty(1)
+    kde_density(Rs, ts, np.ones(1), np.ones(6), dens)
+    grp = np.empty(1, np.int32)
+    group_poses(Rs, ts, np.zeros(1, np.int64), 0.25, 0.1, grp)
+
+
+@njit
+def farthest_point_samples(points, ptr, m, out_ptr, out_points):
+    """Up to ``m`` samples per plane by farthest-point sampling (CSR in, CSR out).
+
+    ``points`` (M, 3) float64 with rows ``ptr[j]:ptr[j + 1]`` for plane j; the first pick is the point farthest
+    from the plane's mean, so the result does not depend on the order of the points. ``out_ptr`` (S + 1,) and
+    ``out_points`` (>= S * m, 3) receive the result; returns the number of points written.
+    """
+    S = ptr.shape[0] - 1
+    written = 0
+    out_ptr[0] = 0
+    maxlen = 0
+    for j in range(S):
+        if ptr[j + 1] - ptr[j] > maxlen:
+            maxlen = ptr[j + 1] - ptr[j]
+    dist = np.empty(maxlen)
+    for j in range(S):
+        s0 = ptr[j]
+        n = ptr[j + 1] - s0
+        if n > 0:
+            mx = 0.0
+            my = 0.0
+            mz = 0.0
+            for k in range(n):
+                mx += points[s0 + k, 0]
+                my += points[s0 + k, 1]
+                mz += points[s0 + k, 2]
+            mx /= n
+            my /= n
+            mz /= n
+            for k in range(n):
+                dx = points[s0 + k, 0] - mx
+                dy = points[s0 + k, 1] - my
+                dz = points[s0 + k, 2] - mz
+                dist[k] = dx * dx + dy * dy + dz * dz
+            take = m if m < n else n
+            for q in range(take):
+                best = 0
+                for k in range(1, n):
+                    if dist[k] > dist[best]:
+                        best = k
+                px = points[s0 + best, 0]
+                py = points[s0 + best, 1]
+                pz = points[s0 + best, 2]
+                out_points[written, 0] = px
+                out_points[written, 1] = py
+                out_points[written, 2] = pz
+                written += 1
+                for k in range(n):
+                    dx = points[s0 + k, 0] - px
+                    dy = points[s0 + k, 1] - py
+                    dz = points[s0 + k, 2] - pz
+                    d = dx * dx + dy * dy + dz * dz
+                    if q == 0 or d < dist[k]:
+                        dist[k] = d
+        out_ptr[j + 1] = written
+    return written
+
+
+@register_warmup
+def _warmup_fps() -> None:
+    pts = np.random.default_rng(0).random((10, 3))
+    out_ptr = np.empty(3, np.int64)
+    out = np.empty((8, 3))
+    farthest_point_samples(pts, np.array([0, 6, 10], np.int64), 4, out_ptr, out)

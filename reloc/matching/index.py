@@ -1,0 +1,130 @@
+"""The index of a plane map, built once per map so that queries never enumerate all map triplets.
+
+- **Pairs**: every ordered pair of map planes ``(i, k)`` whose normal angle can occur inside a triplet (the
+  orthogonality window widened by the pair tolerance, or the non-degenerate range without structural constraints)
+  and, with structural constraints, whose spheres (centroid, radius) are at most ``max_sphere_gap_m`` apart. Sorted
+  by angle, so the pairs agreeing with a submap pair are one binary search away; the same relation is also kept per
+  plane (CSR rows sorted by angle) to find the third plane. With the sphere constraint the number of pairs grows
+  linearly with the map (each plane has a bounded number of neighbours); without it, quadratically.
+- **Ground set**: map planes whose normal is within ``ground_tolerance`` of the map's up direction.
+- **Spatial hash** of the map planes' samples on a grid of ``extent_cell_m`` dilated by one cell: which map planes
+  have samples near a point, in one lookup (verification, Eq. 10-11).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from reloc.matching import _kernels as K
+from reloc.matching.params import MatchingParams
+from reloc.planeset import PlaneSet
+
+__all__ = ["MapIndex", "build_index", "ground_mask"]
+
+
+def ground_mask(planes: PlaneSet, tolerance_rad: float) -> np.ndarray:
+    """(N,) bool: planes facing up (normal within ``tolerance_rad`` of ``-gravity``); all False without gravity."""
+    if planes.gravity is None or len(planes) == 0:
+        return np.zeros(len(planes), dtype=bool)
+    up = -planes.gravity
+    return planes.normals @ up >= math.cos(tolerance_rad)
+
+
+@dataclass(frozen=True)
+class MapIndex:
+    normals: np.ndarray  # (N, 3) float64
+    offsets: np.ndarray  # (N,)
+    centroids: np.ndarray  # (N, 3)
+    radii: np.ndarray  # (N,)
+    areas: np.ndarray  # (N,)
+    is_ground: np.ndarray  # (N,) bool
+    pair_first: np.ndarray  # (P,) int32, sorted by pair_angle
+    pair_second: np.ndarray  # (P,) int32
+    pair_angle: np.ndarray  # (P,) float64 radians
+    adj_ptr: np.ndarray  # (N + 1,) int64
+    adj_ids: np.ndarray  # (P,) int32, rows sorted by angle
+    adj_angle: np.ndarray  # (P,) float64
+    hash_keys: np.ndarray  # (C,) int64 sorted unique cell keys
+    hash_ptr: np.ndarray  # (C + 1,) int64
+    hash_ids: np.ndarray  # (E,) int32 map plane ids per cell
+    cell_m: float
+    structural: bool
+    build_ms: float
+
+    def __len__(self) -> int:
+        return int(self.normals.shape[0])
+
+    @property
+    def n_pairs(self) -> int:
+        return int(self.pair_first.shape[0])
+
+
+def _spatial_hash(planes: PlaneSet, cell_m: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    pts = planes.sample_points.astype(np.float64)
+    ids = np.repeat(np.arange(len(planes), dtype=np.int32), np.diff(planes.sample_ptr))
+    # Planes without samples stand for themselves with their centroid.
+    empty = np.flatnonzero(np.diff(planes.sample_ptr) == 0)
+    if empty.size:
+        pts = np.concatenate([pts, planes.centroids[empty]])
+        ids = np.concatenate([ids, empty.astype(np.int32)])
+    if pts.shape[0] == 0:
+        return np.zeros(0, np.int64), np.zeros(1, np.int64), np.zeros(0, np.int32)
+    keys = K.cell_keys(np.ascontiguousarray(pts), cell_m)
+    # Unique (cell, plane) first, so the 27-fold dilation works on few entries.
+    pair = np.unique(np.stack([keys, ids.astype(np.int64)], axis=1), axis=0)
+    dk, di = K.dilate_keys(np.ascontiguousarray(pair[:, 0]), np.ascontiguousarray(pair[:, 1].astype(np.int32)))
+    both = np.unique(np.stack([dk, di.astype(np.int64)], axis=1), axis=0)  # sorted by key, then id
+    keys_u, starts = np.unique(both[:, 0], return_index=True)
+    ptr = np.append(starts, both.shape[0]).astype(np.int64)
+    return keys_u.astype(np.int64), ptr, np.ascontiguousarray(both[:, 1].astype(np.int32))
+
+
+def build_index(planes: PlaneSet, params: MatchingParams) -> MapIndex:
+    """Index the map ``planes`` (frame "map", gravity set for the ground constraint) for :mod:`reloc.matching`."""
+    if not isinstance(planes, PlaneSet):
+        raise ValueError(f"planes: expected a PlaneSet, got {type(planes).__name__}")
+    t0 = time.perf_counter()
+    structural = params.structural_constraints
+    tol = params.pair_angle_tolerance_rad
+    if structural:
+        lo, hi = params.triplet_min_angle_rad - tol, params.triplet_max_angle_rad + tol
+    else:
+        lo, hi = params.degenerate_min_angle_rad - tol, math.pi - params.degenerate_min_angle_rad + tol
+    normals = np.ascontiguousarray(planes.normals)
+    centroids = np.ascontiguousarray(planes.centroids)
+    radii = np.ascontiguousarray(planes.radii)
+    first, second, ang = K.build_pairs(normals, centroids, radii, max(lo, 0.0), min(hi, math.pi), structural,
+                                       params.max_sphere_gap_m)
+    # Rows (by first) sorted by angle: the adjacency; all pairs sorted by angle: the pair list.
+    row_order = np.lexsort((ang, first))
+    adj_ids = np.ascontiguousarray(second[row_order])
+    adj_angle = np.ascontiguousarray(ang[row_order])
+    adj_ptr = np.zeros(len(planes) + 1, np.int64)
+    np.add.at(adj_ptr, first.astype(np.int64) + 1, 1)
+    adj_ptr = np.cumsum(adj_ptr)
+    order = np.argsort(ang, kind="stable")
+    keys, ptr, ids = _spatial_hash(planes, params.extent_cell_m)
+    return MapIndex(
+        normals=normals,
+        offsets=np.ascontiguousarray(planes.offsets),
+        centroids=centroids,
+        radii=radii,
+        areas=np.ascontiguousarray(planes.areas),
+        is_ground=ground_mask(planes, params.ground_tolerance_rad),
+        pair_first=np.ascontiguousarray(first[order]),
+        pair_second=np.ascontiguousarray(second[order]),
+        pair_angle=np.ascontiguousarray(ang[order]),
+        adj_ptr=adj_ptr,
+        adj_ids=adj_ids,
+        adj_angle=adj_angle,
+        hash_keys=keys,
+        hash_ptr=ptr,
+        hash_ids=ids,
+        cell_m=float(params.extent_cell_m),
+        structural=structural,
+        build_ms=(time.perf_counter() - t0) * 1e3,
+    )

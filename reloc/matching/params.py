@@ -1,0 +1,146 @@
+"""Plain parameters of relocalization (triplet selection, transforms, evaluation, decision).
+
+The stage functions take these values, never the config object; :meth:`MatchingParams.from_config` is the one place
+that reads the ``matching`` and ``evaluation`` sections. Angles are stored in radians here (the config holds degrees).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, fields, replace
+
+__all__ = ["MatchingParams", "ABLATIONS", "ablation_params"]
+
+
+@dataclass(frozen=True)
+class MatchingParams:
+    # Incremental input model.
+    incremental: bool = True
+    initial_planes: int = 5
+    max_submap_planes: int = 30
+    # Triplet selection.
+    structural_constraints: bool = True
+    ground_tolerance_rad: float = math.radians(15.0)
+    triplet_min_angle_rad: float = math.radians(40.0)
+    triplet_max_angle_rad: float = math.radians(140.0)
+    degenerate_min_angle_rad: float = math.radians(15.0)
+    pair_angle_tolerance_rad: float = math.radians(6.0)
+    max_sphere_gap_m: float = 1.0
+    min_area_ratio: float = 0.5
+    min_triple_product: float = 0.2
+    max_condition_number: float = 50.0
+    max_candidates: int = 400_000
+    # Evaluation of a transform (Eq. 10-11, scene uniqueness).
+    projection: bool = True
+    projection_inlier_m: float = 0.08
+    min_projection_ratio: float = 0.5
+    overlap: bool = True
+    min_overlap: float = 0.7
+    extent_cell_m: float = 0.25
+    verify_samples_per_plane: int = 12
+    scene_uniqueness: bool = True
+    min_matched_planes: int = 5
+    min_explained_fraction: float = 0.85
+    match_max_angle_rad: float = math.radians(5.0)
+    match_max_offset_m: float = 0.08
+    # Weights and kernel density (Eq. 12-14) and the decision.
+    kde_sigma_translation_m: float = 0.1
+    kde_sigma_rotation_rad: float = math.radians(3.0)
+    min_score: float = 0.0
+    min_ambiguity_ratio: float = 1.5
+    distinct_translation_m: float = 0.25
+    distinct_rotation_rad: float = math.radians(5.0)
+    refine_iterations: int = 2
+
+    def __post_init__(self) -> None:
+        problems = []
+        for f in fields(self):
+            v = getattr(self, f.name)
+            if isinstance(v, bool):
+                continue
+            if not math.isfinite(float(v)):
+                problems.append(f"{f.name}: expected a finite number, got {v!r}")
+            elif float(v) < 0:
+                problems.append(f"{f.name}: expected >= 0, got {v!r}")
+        if self.initial_planes < 3:
+            problems.append(f"initial_planes: expected >= 3, got {self.initial_planes}")
+        if self.max_submap_planes < 3:
+            problems.append(f"max_submap_planes: expected >= 3, got {self.max_submap_planes}")
+        if not self.triplet_min_angle_rad < self.triplet_max_angle_rad:
+            problems.append(
+                f"triplet_min_angle_rad: expected < triplet_max_angle_rad, got {self.triplet_min_angle_rad} and "
+                f"{self.triplet_max_angle_rad}"
+            )
+        if self.min_matched_planes < 3:
+            problems.append(f"min_matched_planes: expected >= 3, got {self.min_matched_planes}")
+        if self.verify_samples_per_plane < 1:
+            problems.append(f"verify_samples_per_plane: expected >= 1, got {self.verify_samples_per_plane}")
+        if self.min_ambiguity_ratio < 1:
+            problems.append(f"min_ambiguity_ratio: expected >= 1, got {self.min_ambiguity_ratio}")
+        if self.max_condition_number <= 1:
+            problems.append(f"max_condition_number: expected > 1, got {self.max_condition_number}")
+        if problems:
+            raise ValueError("MatchingParams: " + "; ".join(problems))
+
+    @classmethod
+    def from_config(cls, cfg) -> "MatchingParams":
+        """Read the ``matching`` and ``evaluation`` sections of a :class:`reloc.config.Config`."""
+        m, e = cfg.matching, cfg.evaluation
+        r = math.radians
+        return cls(
+            incremental=m.incremental,
+            initial_planes=m.initial_planes,
+            max_submap_planes=m.max_submap_planes,
+            structural_constraints=m.structural_constraints,
+            ground_tolerance_rad=r(m.ground_tolerance_deg),
+            triplet_min_angle_rad=r(m.triplet_min_angle_deg),
+            triplet_max_angle_rad=r(m.triplet_max_angle_deg),
+            degenerate_min_angle_rad=r(m.degenerate_min_angle_deg),
+            pair_angle_tolerance_rad=r(m.pair_angle_tolerance_deg),
+            max_sphere_gap_m=m.max_sphere_gap_m,
+            min_area_ratio=m.min_area_ratio,
+            min_triple_product=m.min_triple_product,
+            max_condition_number=m.max_condition_number,
+            max_candidates=m.max_candidates,
+            projection=e.projection,
+            projection_inlier_m=e.projection_inlier_m,
+            min_projection_ratio=e.min_projection_ratio,
+            overlap=e.overlap,
+            min_overlap=e.min_overlap,
+            extent_cell_m=e.extent_cell_m,
+            verify_samples_per_plane=e.verify_samples_per_plane,
+            scene_uniqueness=e.scene_uniqueness,
+            min_matched_planes=e.min_matched_planes,
+            min_explained_fraction=e.min_explained_fraction,
+            match_max_angle_rad=r(e.match_max_angle_deg),
+            match_max_offset_m=e.match_max_offset_m,
+            kde_sigma_translation_m=e.kde_sigma_translation_m,
+            kde_sigma_rotation_rad=r(e.kde_sigma_rotation_deg),
+            min_score=e.min_score,
+            min_ambiguity_ratio=e.min_ambiguity_ratio,
+            distinct_translation_m=e.distinct_translation_m,
+            distinct_rotation_rad=r(e.distinct_rotation_deg),
+            refine_iterations=e.refine_iterations,
+        )
+
+
+# The paper's ablations that concern matching (Table 3). VR-NE and VR-NM switch off extraction features
+# (adaptive weights, merging) and leave these parameters alone.
+ABLATIONS = ("Ours", "VR-NE", "VR-NM", "VR-NI", "VR-NG", "VR-NP", "VR-NO", "VR-NS")
+
+
+def ablation_params(params: MatchingParams, name: str) -> MatchingParams:
+    """``params`` with the switch of ablation ``name`` turned off (``Ours``, ``VR-NE`` and ``VR-NM`` unchanged)."""
+    if name in ("Ours", "VR-NE", "VR-NM"):
+        return params
+    if name == "VR-NI":
+        return replace(params, incremental=False)
+    if name == "VR-NG":
+        return replace(params, structural_constraints=False)
+    if name == "VR-NP":
+        return replace(params, projection=False)
+    if name == "VR-NO":
+        return replace(params, overlap=False)
+    if name == "VR-NS":
+        return replace(params, scene_uniqueness=False)
+    raise ValueError(f"name: expected one of {ABLATIONS}, got {name!r}")

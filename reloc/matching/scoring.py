@@ -1,0 +1,120 @@
+"""From verified hypotheses to one decision: frequency weights (Eq. 12-13), kernel density (Eq. 14), acceptance.
+
+Each verified hypothesis ``a`` is a pose ``v_a = T_map_sub`` with its matched plane pairs ``(i, j)`` and their
+overlaps ``o(i, j)``. The paper's intent for Eq. 12-13 is that a plane pair weighs less the more often it appears
+across the hypotheses: here a submap plane j that is matched at ``f_j`` distinct poses (modes) contributes
+``o(i, j) / f_j`` to the weight ``w_a = sum o(i, j) w_a(i, j)`` of every hypothesis using it, so planes that fit
+everywhere (a floor, a generic wall) count little and distinctive planes count fully. The density
+``P(x) = 1/Z sum_a w_a exp(-xi^T I xi)``, ``xi = log(v_x^-1 v_a)``, ``Z = sum_a w_a`` (Eq. 14) is evaluated at every
+candidate pose; the best pose wins only when its density clears ``min_score`` and is at least
+``min_ambiguity_ratio`` times the density of the best pose at a *different* place (farther than the distinct
+thresholds). Otherwise the query is rejected as ambiguous: identical rooms and symmetric rooms are not guessed.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from reloc.matching import _kernels as K
+from reloc.matching.params import MatchingParams
+
+__all__ = ["Decision", "frequency_weights", "pose_density", "decide"]
+
+
+@dataclass(frozen=True)
+class Decision:
+    accepted: bool
+    reason: str
+    best: int  # index of the winning hypothesis, -1 when there is none
+    score: float  # normalized density at the best pose (0..1)
+    runner_up_score: float  # normalized density at the best different pose (0 when there is none)
+    n_modes: int
+
+
+def _distinct_from(R: np.ndarray, t: np.ndarray, a: int, params: MatchingParams) -> np.ndarray:
+    """(H,) bool: poses farther than the distinct thresholds from pose ``a``."""
+    dt = np.linalg.norm(t - t[a], axis=1)
+    cos = 0.5 * (np.einsum("hij,ij->h", R, R[a]) - 1.0)
+    ang = np.arccos(np.clip(cos, -1.0, 1.0))
+    return (dt > params.distinct_translation_m) | (ang > params.distinct_rotation_rad)
+
+
+def frequency_weights(
+    R: np.ndarray, t: np.ndarray, match: np.ndarray, overlap: np.ndarray, quality: np.ndarray, params: MatchingParams
+) -> tuple[np.ndarray, np.ndarray]:
+    """Eq. 12-13: the weight ``w_a`` of each verified hypothesis, and the mode (group of nearby poses) of each.
+
+    ``R`` (H, 3, 3), ``t`` (H, 3), ``match`` (H, S) map plane per submap plane (-1 none), ``overlap`` (H, S),
+    ``quality`` (H,) the order in which hypotheses lead the grouping into modes (best first).
+    Returns ``(w (H,), group (H,) int32)``.
+    """
+    H = R.shape[0]
+    order = np.argsort(-quality, kind="stable").astype(np.int64)
+    group = np.empty(H, np.int32)
+    leaders = K.group_poses(np.ascontiguousarray(R), np.ascontiguousarray(t), order, params.distinct_translation_m,
+                            params.distinct_rotation_rad, group)
+    G = len(leaders)
+    matched = match >= 0
+    per_group = np.zeros((G, match.shape[1]), dtype=bool)
+    np.logical_or.at(per_group, group, matched)
+    freq = per_group.sum(axis=0)  # modes in which each submap plane is matched
+    inv = np.where(freq > 0, 1.0 / np.maximum(freq, 1), 0.0)
+    w = np.sum(np.where(matched, overlap, 0.0) * inv[None, :], axis=1)
+    return w, group
+
+
+def pose_density(R: np.ndarray, t: np.ndarray, weights: np.ndarray, params: MatchingParams) -> np.ndarray:
+    """Eq. 14 at every candidate pose, normalized by the total weight: (H,) values in [0, 1]."""
+    info = np.array(
+        [1.0 / params.kde_sigma_translation_m**2] * 3 + [1.0 / params.kde_sigma_rotation_rad**2] * 3
+    )
+    dens = np.empty(R.shape[0])
+    K.kde_density(np.ascontiguousarray(R), np.ascontiguousarray(t), np.ascontiguousarray(weights, dtype=np.float64),
+                  info, dens)
+    z = float(np.sum(weights))
+    return dens / z if z > 0 else dens
+
+
+def decide(
+    R: np.ndarray,
+    t: np.ndarray,
+    match: np.ndarray,
+    overlap: np.ndarray,
+    n_matched: np.ndarray,
+    explained: np.ndarray,
+    params: MatchingParams,
+) -> Decision:
+    """Pick the best pose among verified hypotheses, or reject with a reason."""
+    H = R.shape[0]
+    if H == 0:
+        return Decision(False, "no hypothesis passed verification", -1, 0.0, 0.0, 0)
+    quality = n_matched.astype(np.float64) + explained
+    w, group = frequency_weights(R, t, match, overlap, quality, params)
+    n_modes = int(group.max()) + 1
+    # Triplets of the same mode are not independent evidence: each mode counts once, however many triplets gave it
+    # (otherwise a pose reachable through more map triplets, e.g. via a floor shared with the next room, would win).
+    size = np.bincount(group, minlength=n_modes)[group]
+    density = pose_density(R, t, w / size, params)
+    # Best: highest density; ties go to the better verified hypothesis.
+    best = int(np.lexsort((-quality, -density))[0])
+    score = float(density[best])
+    other = _distinct_from(R, t, best, params)
+    runner = float(density[other].max()) if other.any() else 0.0
+    if score < params.min_score or score <= 0.0:
+        return Decision(False, f"score {score:.3f} below {params.min_score}", best, score, runner, n_modes)
+    if runner > 0 and score < params.min_ambiguity_ratio * runner:
+        return Decision(
+            False,
+            f"ambiguous: {n_modes} poses, best score {score:.3f} not {params.min_ambiguity_ratio}x the runner-up "
+            f"{runner:.3f}",
+            best, score, runner, n_modes,
+        )
+    return Decision(True, "", best, score, runner, n_modes)
+
+
+def ratio(score: float, runner_up: float) -> float:
+    """``score / runner_up`` (inf without a runner-up)."""
+    return math.inf if runner_up <= 0 else score / runner_up

@@ -1,0 +1,144 @@
+"""Triplet selection: which submap planes come first, which submap triplets are tried, and their map candidates.
+
+- :func:`order_submap_planes`: the incremental input order, representative planes first (the ground, then large
+  planes well separated in angle from those already chosen), then the rest by area.
+- :func:`submap_triplets`: triplets of submap planes inside the orthogonality window with the ground constraint
+  (structural mode), or any non-degenerate triplet (the paper's VR-NG).
+- :func:`candidate_triplets`: for each submap triplet, the map triplets agreeing with it (pairwise angles within the
+  tolerance, same handedness, spheres close, areas compatible, ground matched to ground), found through the
+  :class:`~reloc.matching.index.MapIndex`, or by brute force over all map triplets (the baseline).
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+
+import numpy as np
+
+from reloc.matching import _kernels as K
+from reloc.matching.index import MapIndex, ground_mask
+from reloc.matching.params import MatchingParams
+from reloc.planeset import PlaneSet
+
+__all__ = ["order_submap_planes", "submap_triplets", "candidate_triplets"]
+
+
+def order_submap_planes(planes: PlaneSet, params: MatchingParams) -> np.ndarray:
+    """Indices of ``planes`` in incremental input order, at most ``params.max_submap_planes`` of them.
+
+    The ground (the largest plane facing up) first; then, while fewer than ``initial_planes`` are chosen, the
+    largest plane whose normal is at least 30 degrees from every chosen one (or, when none is left, the plane most
+    separated in angle); then the others by decreasing area. Ties are broken by the plane's geometry, not its index,
+    so the order does not depend on the order of the input.
+    """
+    n = len(planes)
+    if n == 0:
+        return np.zeros(0, np.int64)
+    areas = planes.areas
+    # Deterministic tie-break independent of input order: area, then the centroid coordinates.
+    by_area = np.lexsort((planes.centroids[:, 2], planes.centroids[:, 1], planes.centroids[:, 0], -areas))
+    chosen: list[int] = []
+    ground = ground_mask(planes, params.ground_tolerance_rad)
+    if ground.any():
+        chosen.append(int(next(i for i in by_area if ground[i])))
+    sep = math.cos(math.radians(30.0))
+    while len(chosen) < min(params.initial_planes, n):
+        rest = [int(i) for i in by_area if i not in chosen]
+        cosines = np.abs(planes.normals[rest] @ planes.normals[chosen].T).max(axis=1) if chosen else np.zeros(len(rest))
+        ok = [i for i, c in zip(rest, cosines) if c <= sep]
+        chosen.append(ok[0] if ok else rest[int(np.argmin(cosines))])
+    rest = [int(i) for i in by_area if i not in chosen]
+    order = np.array(chosen + rest, dtype=np.int64)
+    return order[: params.max_submap_planes]
+
+
+def submap_triplets(
+    normals: np.ndarray, is_ground: np.ndarray, positions: np.ndarray, new_from: int, params: MatchingParams
+) -> tuple[np.ndarray, bool]:
+    """Submap triplets among ``positions`` (plane indices in input order) having at least one plane at a position
+    ``>= new_from`` (the planes added in this round of the incremental input).
+
+    Returns ``(triplets (T, 3) int32, ground)``; with ``ground`` the first plane of each row is a ground plane and
+    the map side must match it with a ground plane. Rows pass the angle window (all three pairs) and the
+    triple-product test (the normals span 3-D space).
+    """
+    k = len(positions)
+    structural = params.structural_constraints
+    use_ground = structural and bool(np.any(is_ground[positions]))
+    if structural:
+        lo, hi = params.triplet_min_angle_rad, params.triplet_max_angle_rad
+    else:
+        lo, hi = params.degenerate_min_angle_rad, math.pi - params.degenerate_min_angle_rad
+    rows = []
+    for a, b, c in itertools.combinations(range(k), 3):
+        if c < new_from:
+            continue
+        tri = [int(positions[a]), int(positions[b]), int(positions[c])]
+        if use_ground:
+            g = [x for x in tri if is_ground[x]]
+            if len(g) != 1:
+                continue
+            others = sorted(x for x in tri if x != g[0])
+            tri = [g[0], *others]
+        rows.append(tri)
+    if not rows:
+        return np.zeros((0, 3), np.int32), use_ground
+    tri = np.array(rows, dtype=np.int32)
+    n0, n1, n2 = normals[tri[:, 0]], normals[tri[:, 1]], normals[tri[:, 2]]
+
+    def ang(u, v):
+        return np.arccos(np.clip(np.sum(u * v, axis=1), -1.0, 1.0))
+
+    keep = np.ones(len(tri), dtype=bool)
+    for u, v in ((n0, n1), (n0, n2), (n1, n2)):
+        a = ang(u, v)
+        keep &= (a >= lo) & (a <= hi)
+    keep &= np.abs(np.sum(n0 * np.cross(n1, n2), axis=1)) >= params.min_triple_product
+    return np.ascontiguousarray(tri[keep]), use_ground
+
+
+def candidate_triplets(
+    index: MapIndex,
+    sub_normals: np.ndarray,
+    sub_areas: np.ndarray,
+    triplets: np.ndarray,
+    require_ground: bool,
+    params: MatchingParams,
+    *,
+    brute_force: bool = False,
+) -> tuple[np.ndarray, int, bool]:
+    """Candidate correspondences ``(j0, j1, j2, i0, i1, i2)`` (H, 6) int32 for the submap ``triplets``.
+
+    Returns ``(candidates, generated, truncated)``: ``generated`` counts the map triplets looked at (the cost of
+    the search), ``truncated`` is True when more than ``params.max_candidates`` agreed (only that many are kept).
+    ``brute_force`` enumerates every ordered map triplet instead of the index; it must give the same rows.
+    """
+    if index.structural != params.structural_constraints:
+        raise ValueError(
+            f"index: built with structural_constraints={index.structural}, but params have "
+            f"{params.structural_constraints}; rebuild the index with these params"
+        )
+    cap = int(params.max_candidates)
+    out = np.empty((cap, 6), np.int32)
+    if len(triplets) == 0 or len(index) < 3:
+        return out[:0], 0, False
+    structural = params.structural_constraints
+    sub_normals = np.ascontiguousarray(sub_normals, dtype=np.float64)
+    sub_areas = np.ascontiguousarray(sub_areas, dtype=np.float64)
+    common = (
+        params.pair_angle_tolerance_rad, bool(require_ground), structural, params.max_sphere_gap_m, structural,
+        params.min_area_ratio, params.min_triple_product,
+    )
+    if brute_force:
+        count, generated = K.brute_force_candidates(
+            triplets, sub_normals, sub_areas, index.normals, index.centroids, index.radii, index.areas,
+            index.is_ground, *common, out,
+        )
+    else:
+        count, generated = K.join_candidates(
+            triplets, sub_normals, sub_areas, index.normals, index.centroids, index.radii, index.areas,
+            index.is_ground, index.pair_first, index.pair_second, index.pair_angle, index.adj_ptr, index.adj_ids,
+            index.adj_angle, *common, out,
+        )
+    return out[: min(count, cap)], int(generated), count > cap

@@ -1,0 +1,253 @@
+"""Plane matching on exact synthetic plane sets (reloc.evaluation.synthetic): transforms, index, decisions."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pytest
+
+from reloc.evaluation.synthetic import furnished_room, look_at, scene_planes, view_planes
+from reloc.matching import MatchingParams, Relocalizer, transform_from_plane_pairs
+from reloc.matching import _kernels as K
+from reloc.matching.index import build_index
+from reloc.matching.selection import candidate_triplets, order_submap_planes, submap_triplets
+from reloc.matching.transform import rotation_from_normal_pairs
+from reloc.planes import transform_planes
+from reloc.transforms import invert, pose_error, rotation_from_axis_angle, transform_from_rotation_translation
+
+
+def random_rotation(rng) -> np.ndarray:
+    axis = rng.normal(size=3)
+    return rotation_from_axis_angle(axis / np.linalg.norm(axis) * rng.uniform(0, math.pi))
+
+
+def random_pose(rng) -> np.ndarray:
+    return transform_from_rotation_translation(random_rotation(rng), rng.uniform(-5, 5, size=3))
+
+
+def views(rng, n, width=6.0, depth=5.0):
+    """Camera poses inside a room looking at least 1.5 m across it."""
+    out = []
+    while len(out) < n:
+        eye = (rng.uniform(0.5, width - 0.5), rng.uniform(0.5, depth - 0.5), rng.uniform(0.8, 1.7))
+        target = (rng.uniform(0, width), rng.uniform(0, depth), rng.uniform(0.2, 1.2))
+        if np.linalg.norm(np.subtract(eye, target)[:2]) >= 1.5:
+            out.append(look_at(eye, target))
+    return out
+
+
+# --- transforms ----------------------------------------------------------------------------------------------------
+
+
+def test_jacobi_eigh_matches_numpy():
+    rng = np.random.default_rng(0)
+    for n in (3, 4):
+        for _ in range(50):
+            A = rng.normal(size=(n, n))
+            A = A + A.T
+            work, V = A.copy(), np.empty((n, n))
+            K.jacobi_eigh(work, V, n)
+            vals = np.diag(work)
+            np.testing.assert_allclose(np.sort(vals), np.linalg.eigvalsh(A), atol=1e-10)
+            np.testing.assert_allclose(A @ V, V * vals, atol=1e-9)
+
+
+def test_rotation_kernel_matches_numpy_horn_and_truth():
+    rng = np.random.default_rng(1)
+    R_out, N, V = np.empty((3, 3)), np.empty((4, 4)), np.empty((4, 4))
+    for k in (2, 3, 6):
+        for _ in range(30):
+            R_true = random_rotation(rng)
+            n_sub = rng.normal(size=(k, 3))
+            n_sub /= np.linalg.norm(n_sub, axis=1, keepdims=True)
+            n_map = n_sub @ R_true.T
+            w = rng.uniform(0.5, 2.0, size=k)
+            K.rotation_from_pairs(n_sub, n_map, w, k, R_out, N, V)
+            R_np, gap = rotation_from_normal_pairs(n_sub, n_map, w)
+            np.testing.assert_allclose(R_out, R_true, atol=1e-9)
+            np.testing.assert_allclose(R_np, R_true, atol=1e-9)
+            assert gap > 0
+
+
+def test_exact_pose_from_three_plane_pairs():
+    rng = np.random.default_rng(2)
+    for _ in range(20):
+        T_map_sub = random_pose(rng)
+        n_map = np.eye(3)[rng.permutation(3)] @ random_rotation(rng).T  # three perpendicular planes
+        d_map = rng.uniform(-3, 3, size=3)
+        n_sub, d_sub = transform_planes(invert(T_map_sub), n_map, d_map)
+        res = transform_from_plane_pairs(np.c_[n_sub, d_sub], np.c_[n_map, d_map])
+        assert res.ok, res.reason
+        t_err, r_err = pose_error(res.T_map_sub, T_map_sub)
+        assert t_err < 1e-9 and r_err < 1e-7
+        # The batched kernel gives the same pose.
+        cand = np.array([[0, 1, 2, 0, 1, 2]], np.int32)
+        R, t, st = np.empty((1, 3, 3)), np.empty((1, 3)), np.empty(1, np.int8)
+        K.triplet_transforms(cand, n_sub, d_sub, n_map, d_map, math.radians(15), 50.0, 0.2, R, t, st)
+        assert st[0] == K.TRANSFORM_OK
+        np.testing.assert_allclose(R[0], T_map_sub[:3, :3], atol=1e-9)
+        np.testing.assert_allclose(t[0], T_map_sub[:3, 3], atol=1e-9)
+
+
+def test_degenerate_triplets_rejected():
+    T = random_pose(np.random.default_rng(3))
+    cases = {
+        # two normals 5 degrees apart
+        "parallel": (np.array([[1, 0, 0], [math.cos(0.087), math.sin(0.087), 0], [0, 0, 1]]), K.TRANSFORM_PARALLEL),
+        # three vertical walls at 0, 60 and 120 degrees: normals coplanar, height undetermined
+        "ill-conditioned": (
+            np.array([[1, 0, 0], [math.cos(1.047), math.sin(1.047), 0], [math.cos(2.094), math.sin(2.094), 0]]),
+            K.TRANSFORM_ILL_CONDITIONED,
+        ),
+    }
+    for name, (n_map, code) in cases.items():
+        n_map = n_map / np.linalg.norm(n_map, axis=1, keepdims=True)
+        d_map = np.array([-1.0, -2.0, -0.5])
+        n_sub, d_sub = transform_planes(invert(T), n_map, d_map)
+        res = transform_from_plane_pairs(np.c_[n_sub, d_sub], np.c_[n_map, d_map])
+        assert not res.ok and res.T_map_sub is None, name
+        assert ("parallel" in res.reason) if code == K.TRANSFORM_PARALLEL else ("ill-conditioned" in res.reason)
+        cand = np.array([[0, 1, 2, 0, 1, 2]], np.int32)
+        R, t, st = np.empty((1, 3, 3)), np.empty((1, 3)), np.empty(1, np.int8)
+        K.triplet_transforms(cand, n_sub, d_sub, n_map, d_map, math.radians(15), 50.0, 0.2, R, t, st)
+        assert st[0] == code, name
+    # A mirrored triplet (same pairwise angles, opposite handedness) cannot be aligned by a rotation.
+    n_map = np.eye(3)
+    n_sub = np.array([[1.0, 0, 0], [0, 1.0, 0], [0, 0, -1.0]])
+    res = transform_from_plane_pairs(np.c_[n_sub, np.ones(3)], np.c_[n_map, np.ones(3)])
+    assert not res.ok and "aligned" in res.reason
+    cand = np.array([[0, 1, 2, 0, 1, 2]], np.int32)
+    R, t, st = np.empty((1, 3, 3)), np.empty((1, 3)), np.empty(1, np.int8)
+    K.triplet_transforms(cand, n_sub, np.ones(3), n_map, np.ones(3), math.radians(15), 50.0, 0.2, R, t, st)
+    assert st[0] == K.TRANSFORM_INCONSISTENT
+
+
+def test_transform_rejects_bad_shapes():
+    with pytest.raises(ValueError, match="planes_sub, planes_map"):
+        transform_from_plane_pairs(np.zeros((3, 3)), np.zeros((3, 4)))
+
+
+# --- index and selection -------------------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("structural", [True, False])
+def test_index_gives_the_brute_force_candidates(structural):
+    rng = np.random.default_rng(4)
+    rects = furnished_room("office")
+    params = MatchingParams(structural_constraints=structural)
+    index = build_index(scene_planes(rects), params)
+    total = 0
+    for T in views(rng, 4):
+        sub = view_planes(rects, T, point_noise_m=0.003, normal_noise_deg=0.5, rng=rng)
+        ground = np.asarray(sub.normals @ -sub.gravity > math.cos(params.ground_tolerance_rad))
+        tri, use_ground = submap_triplets(sub.normals, ground, np.arange(len(sub)), 0, params)
+        fast, gen_fast, _ = candidate_triplets(index, sub.normals, sub.areas, tri, use_ground, params)
+        slow, gen_slow, _ = candidate_triplets(index, sub.normals, sub.areas, tri, use_ground, params,
+                                               brute_force=True)
+        assert {tuple(r) for r in fast} == {tuple(r) for r in slow}
+        assert len(fast) == len(slow)
+        assert gen_fast < gen_slow  # the index looks at fewer map triplets
+        total += len(fast)
+    assert total > 0
+
+
+def test_incremental_order_starts_with_ground_and_separated_planes():
+    rects = furnished_room("living")
+    sub = view_planes(rects, look_at((5, 4, 1.5), (1, 1, 0.5)))
+    params = MatchingParams()
+    order = order_submap_planes(sub, params)
+    assert sorted(order) == list(range(len(sub)))
+    assert sub.normals[order[0]] @ -sub.gravity > math.cos(params.ground_tolerance_rad)
+    first = sub.normals[order[: params.initial_planes]]
+    assert sub.areas[order[0]] == max(sub.areas[sub.normals @ -sub.gravity > 0.96])
+    # Among the first planes, at least three directions 30 degrees apart.
+    dirs = [first[0]]
+    for n in first[1:]:
+        if all(abs(n @ d) < math.cos(math.radians(30)) for d in dirs):
+            dirs.append(n)
+    assert len(dirs) >= 3
+
+
+# --- relocalization ------------------------------------------------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def living_relocalizer():
+    return Relocalizer(scene_planes(furnished_room("living")), MatchingParams())
+
+
+def test_locate_recovers_known_poses(living_relocalizer):
+    rng = np.random.default_rng(5)
+    rects = furnished_room("living")
+    errors, relocalized = [], 0
+    Ts = views(rng, 12)
+    for T in Ts:
+        sub = view_planes(rects, T, point_noise_m=0.005, normal_noise_deg=0.3, offset_noise_m=0.005, rng=rng)
+        res = living_relocalizer.locate(sub)
+        if len(sub) >= 5:
+            assert res.relocalized, res.reason
+        if res.relocalized:
+            relocalized += 1
+            errors.append(pose_error(res.T_map_cam, T))
+            assert res.n_matched >= 5 and res.explained_fraction >= 0.85
+            assert res.counts["candidates"] >= res.counts["verified"] >= res.counts["passed"] >= 1
+            assert set(res.timings_ms) >= {"select", "transform", "verify", "decide", "refine", "total"}
+    assert relocalized >= 9
+    errors = np.array(errors)
+    assert np.median(errors[:, 0]) < 0.02 and errors[:, 0].max() < 0.05
+    assert np.median(errors[:, 1]) < 0.3 and errors[:, 1].max() < 1.0
+
+
+def test_same_pose_whatever_the_plane_order(living_relocalizer):
+    rng = np.random.default_rng(6)
+    rects = furnished_room("living")
+    T = look_at((5, 4, 1.5), (1, 1, 0.5))
+    sub = view_planes(rects, T, point_noise_m=0.005, normal_noise_deg=0.3, rng=rng)
+    ref = living_relocalizer.locate(sub)
+    assert ref.relocalized
+    for _ in range(5):
+        perm = rng.permutation(len(sub))
+        res = living_relocalizer.locate(sub.subset(perm))
+        assert res.relocalized
+        np.testing.assert_allclose(res.T_map_cam, ref.T_map_cam, atol=1e-9)
+        # Matched pairs name the same physical planes.
+        assert {(int(perm[j]), int(i)) for j, i in res.matched} == {tuple(r) for r in ref.matched.tolist()}
+
+
+def test_query_from_another_scene_is_rejected(living_relocalizer):
+    rng = np.random.default_rng(7)
+    for kind in ("office", "meeting"):
+        rects = furnished_room(kind)
+        for T in views(rng, 10):
+            res = living_relocalizer.locate(view_planes(rects, T, point_noise_m=0.005, rng=rng))
+            assert not res.relocalized and res.T_map_cam is None and res.reason
+
+
+def test_identical_rooms_and_symmetric_room_are_rejected_as_ambiguous():
+    rng = np.random.default_rng(8)
+    two_rooms = furnished_room("meeting") + furnished_room("meeting", origin=(7.0, 0.0))
+    reloc = Relocalizer(scene_planes(two_rooms), MatchingParams())
+    ambiguous = 0
+    for T in views(rng, 10):
+        res = reloc.locate(view_planes(furnished_room("meeting"), T, point_noise_m=0.005, rng=rng))
+        assert not res.relocalized
+        ambiguous += res.reason.startswith("ambiguous")
+    assert ambiguous >= 3
+    sym = furnished_room("symmetric")
+    reloc = Relocalizer(scene_planes(sym), MatchingParams())
+    ambiguous = 0
+    for T in views(rng, 10, 5.0, 5.0):
+        res = reloc.locate(view_planes(sym, T, point_noise_m=0.005, rng=rng))
+        assert not res.relocalized
+        ambiguous += res.reason.startswith("ambiguous")
+    assert ambiguous >= 3
+
+
+def test_result_is_json_ready(living_relocalizer):
+    sub = view_planes(furnished_room("living"), look_at((5, 4, 1.5), (1, 1, 0.5)))
+    d = living_relocalizer.locate(sub).to_dict()
+    back = json.loads(json.dumps(d))
+    assert back["status"] == "relocalized" and len(back["T_map_cam"]) == 4
+    assert back["matched_planes"] >= 5 and back["counts"]["rounds"] >= 1
