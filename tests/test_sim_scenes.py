@@ -52,9 +52,19 @@ def test_scene_contents_match_the_brief():
     assert lr.cylinders.shape[0] >= 1 and lr.spheres.shape[0] >= 1
     assert make_scene("apartment").rooms.shape[0] >= 5
     assert make_scene("building").n_planes >= 1000
-    # Meeting rooms are identical copies: the same plane offsets up to a shift along x.
+    # Meeting rooms are identical copies: each room's own planes are the first room's, shifted along x.
     m = make_scene("meeting_rooms")
     assert m.rooms.shape[0] == 5
+    copies = []
+    for x0, y0, x1, y1, _ in m.rooms[1:]:  # rooms[0] is the corridor
+        rows = [i for i in range(m.n_planes) if m.plane_kinds[i] not in ("floor", "ceiling")
+                and all(p[:, 0].min() >= x0 - 1e-9 and p[:, 0].max() <= x1 + 1e-9 and p[:, 1].min() >= y0 - 0.2
+                        for p in m.polygons_of(i))]
+        shifted = {(m.plane_kinds[i], *np.round(m.normals[i], 9), round(m.offsets[i] + m.normals[i, 0] * x0, 9))
+                   for i in rows}
+        copies.append(shifted)
+    assert len(copies) == 4 and len(copies[0]) >= 20
+    assert all(c == copies[0] for c in copies[1:])
     # Symmetric room: rotating by 90 degrees about its centre maps the plane set onto itself.
     s = make_scene("symmetric_room")
     R = np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
