@@ -74,6 +74,7 @@ def visible_planes_with_ids(
     vv, uu = np.nonzero(labels > 0)
     lab_flat = labels[vv, uu]
     focal = abs(float(intr.fx))
+    radius = model.radius_map(intr) if model.name == "tof" else None
     for k, (pid, row) in enumerate(zip(ids, rows)):
         sel = lab_flat == pid
         v, u = vv[sel], uu[sel]
@@ -93,8 +94,7 @@ def visible_planes_with_ids(
         areas.append(_patch_area(pts, n, area_patch_m))
         sums.append(pts.sum(axis=0))
         scatters.append(pts.T @ pts)
-        sigma = np.maximum(model.sigma_m(z, model.radius_map(intr)[v, u] if model.name == "tof" else 0.0, focal),
-                           min_sigma_m)
+        sigma = np.maximum(model.sigma_m(z, radius[v, u] if radius is not None else 0.0, focal), min_sigma_m)
         covs.append(_plane_covariance(pts, n, sigma))
         s = _voxel_sample(pts, sample_spacing_m)
         samples.append(s)
