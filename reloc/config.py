@@ -229,9 +229,19 @@ class SerialConfig(_Section):
     reconnect_backoff_s: FloatSeq = Field(
         (0.1, 0.2, 0.5, 1.0, 2.0), description="Waits between reopen attempts after an unplug (the last repeats)."
     )
-    max_frame_bytes: int = Field(512, ge=32, le=65535, description="Longer frames are discarded and counted.")
-    pose_rate_hz: float = Field(10.0, gt=0, description="Relocalized poses are sent at most this often.")
-    heartbeat_period_s: float = Field(0.5, gt=0, description="Host heartbeat period.")
+    max_frame_bytes: int = Field(
+        512, ge=144, le=65535,
+        description="Longer frames are discarded and counted (the largest message, RelocPose, is 143 bytes encoded).",
+    )
+    pose_rate_hz: float = Field(
+        10.0, gt=0, description="Poses sent on the host's own initiative at most this often (answers always go)."
+    )
+    heartbeat_period_s: float = Field(0.5, gt=0, description="Host heartbeat period (also the clock-sync sample rate).")
+    status_period_s: float = Field(1.0, gt=0, description="Host status repeated this often, and sent on each change.")
+    peer_timeout_s: float = Field(1.5, gt=0, description="The MCU counts as gone after this long without a frame.")
+    time_sync_window_s: float = Field(
+        20.0, gt=0, description="Window of the minimum-delay filter mapping MCU time to host time (follows clock drift)."
+    )
 
 
 class Config(_Section):
