@@ -46,9 +46,18 @@ class LinkStats:
 
 def open_port(url: str, *, baudrate: int, read_timeout_s: float, write_timeout_s: float):
     """Open any pyserial URL with the link's settings (the reader relies on the read timeout to stay responsive)."""
+    import socket
+
     import serial
 
-    return serial.serial_for_url(url, baudrate=baudrate, timeout=read_timeout_s, write_timeout=write_timeout_s)
+    port = serial.serial_for_url(url, baudrate=baudrate, timeout=read_timeout_s, write_timeout=write_timeout_s)
+    sock = getattr(port, "_socket", None)  # socket:// keeps Nagle on: small frames would wait for the peer's ACK
+    if sock is not None:
+        try:
+            sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+        except OSError:
+            pass
+    return port
 
 
 class SerialLink:

@@ -538,6 +538,9 @@ class McuSimulator:
     faults, silent_after_s, silent_for_s, flood_hz:
         Fault injection on what the simulator sends; a silent window (nothing sent, then resumes); odometry sent at
         ``flood_hz`` instead of ``odom_rate_hz``.
+    record_sent:
+        Keep the last this many sent messages in :attr:`sent_log` (seq -> message), for tests that check that what
+        the host accepted is exactly what was sent.
     """
 
     def __init__(self, endpoint, *, path: PlanarPath | None = None, odometry: OdometryModel | None = None,
