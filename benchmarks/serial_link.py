@@ -107,14 +107,16 @@ def bench_decode(n_frames: int, repeats: int = 3) -> tuple[list, dict]:
 
     rows, res = [], {}
     line_fps = BAUD / 10 / (len(stream) / n_frames)  # 8N1: 10 bits per byte
-    for name, fn in (("split at delimiters", split_only), ("+ COBS + CRC", split_crc),
-                     ("+ header/body decode (StreamDecoder)", full), ("StreamDecoder, 64-byte reads", full_small_chunks)):
+    stages = (("split at delimiters", split_only), ("+ COBS + CRC", split_crc),
+              ("+ header/body decode (StreamDecoder)", full), ("StreamDecoder, 64-byte reads", full_small_chunks))
+    for name, fn in stages:
         t, count = best(fn)
         assert count == n_frames, (name, count)
         fps = n_frames / t
         rows.append([name, fps, len(stream) / t / 1e6, fps / line_fps])
         res[name] = {"frames_per_s": fps, "MB_per_s": len(stream) / t / 1e6, "x_line_rate": fps / line_fps}
-    rows.append(["encode (StreamEncoder)", n_frames / t_encode, len(stream) / t_encode / 1e6, n_frames / t_encode / line_fps])
+    enc_fps = n_frames / t_encode
+    rows.append(["encode (StreamEncoder)", enc_fps, len(stream) / t_encode / 1e6, enc_fps / line_fps])
     res["encode"] = {"frames_per_s": n_frames / t_encode}
     res["mean_wire_bytes_per_frame"] = len(stream) / n_frames
     res["line_rate_frames_per_s_at_921600"] = line_fps

@@ -111,7 +111,10 @@ def encode_frame(payload: bytes, *, leading_delimiter: bool = True) -> bytes:
 
 
 def decode_frame(frame: bytes) -> bytes:
-    """Payload of one frame given the bytes between two delimiters. Raises :class:`FramingError` or :class:`CrcError`."""
+    """Payload of one frame given the bytes between two delimiters.
+
+    Raises :class:`FramingError` (invalid COBS, too short) or :class:`CrcError`.
+    """
     raw = cobs_decode(frame)
     if len(raw) < CRC_BYTES + 1:
         raise FramingError(f"frame of {len(raw)} decoded bytes is too short to hold a payload and a CRC")

@@ -49,6 +49,7 @@ from .protocol import StreamDecoder, StreamEncoder
 
 __all__ = [
     "PlanarPath",
+    "SampledPath",
     "OdometryModel",
     "FaultInjector",
     "McuClock",
@@ -83,6 +84,58 @@ class PlanarPath:
         ddx, ddy = -ax * w * w * math.sin(w * t_s), -2 * ay * w * w * math.sin(2 * w * t_s)
         v2 = dx * dx + dy * dy
         return x, y, math.atan2(dy, dx), math.sqrt(v2), (dx * ddy - dy * ddx) / v2
+
+    def T_map_base(self, t_s: float) -> np.ndarray:
+        from .host import planar_transform
+
+        x, y, yaw, _, _ = self.state(t_s)
+        return planar_transform(x, y, yaw)
+
+
+class SampledPath:
+    """A planar path given by samples ``(t_s, x_m, y_m, yaw_rad)``, linearly interpolated (heading unwrapped); the
+    base stands still before the first and after the last sample. Same interface as :class:`PlanarPath`."""
+
+    def __init__(self, t_s, x_m, y_m, yaw_rad):
+        t = np.asarray(t_s, dtype=np.float64)
+        if t.ndim != 1 or t.size < 2 or np.any(np.diff(t) <= 0):
+            raise ValueError(f"t_s: expected >= 2 strictly increasing times, got shape {t.shape}")
+        arrays = [np.asarray(a, dtype=np.float64) for a in (x_m, y_m, yaw_rad)]
+        for name, a in zip(("x_m", "y_m", "yaw_rad"), arrays):
+            if a.shape != t.shape or not np.all(np.isfinite(a)):
+                raise ValueError(f"{name}: expected {t.shape} finite values, got shape {a.shape}")
+        self.t, self.x, self.y = t, arrays[0], arrays[1]
+        self.yaw = np.unwrap(arrays[2])
+
+    @classmethod
+    def from_T_world_cam(cls, T_world_cam, rate_hz: float, T_base_cam) -> "SampledPath":
+        """From a camera trajectory ``(N, 4, 4) T_world_cam`` at ``rate_hz`` and the mounting ``T_base_cam``: the
+        base is ``T_world_cam @ inv(T_base_cam)``, projected to the floor plane (x, y, heading of base x)."""
+        from reloc.transforms import check_transform, invert
+
+        T = np.asarray(T_world_cam, dtype=np.float64)
+        if T.ndim != 3 or T.shape[1:] != (4, 4) or len(T) < 2:
+            raise ValueError(f"T_world_cam: expected (N >= 2, 4, 4) poses, got shape {T.shape}")
+        if not rate_hz > 0:
+            raise ValueError(f"rate_hz: expected > 0, got {rate_hz}")
+        T_cam_base = invert(check_transform(T_base_cam, "T_base_cam"))
+        T_world_base = T @ T_cam_base
+        yaw = np.arctan2(T_world_base[:, 1, 0], T_world_base[:, 0, 0])
+        return cls(np.arange(len(T)) / rate_hz, T_world_base[:, 0, 3], T_world_base[:, 1, 3], yaw)
+
+    def state(self, t_s: float) -> tuple[float, float, float, float, float]:
+        """``(x_m, y_m, yaw_rad, v_mps, omega_radps)`` at time ``t_s``."""
+        t = self.t
+        if t_s <= t[0] or t_s >= t[-1]:
+            i = 0 if t_s <= t[0] else len(t) - 1
+            return float(self.x[i]), float(self.y[i]), math.remainder(float(self.yaw[i]), 2 * math.pi), 0.0, 0.0
+        i = int(np.searchsorted(t, t_s)) - 1
+        dt = t[i + 1] - t[i]
+        w = (t_s - t[i]) / dt
+        dx, dy, dyaw = self.x[i + 1] - self.x[i], self.y[i + 1] - self.y[i], self.yaw[i + 1] - self.yaw[i]
+        yaw = self.yaw[i] + w * dyaw
+        return (float(self.x[i] + w * dx), float(self.y[i] + w * dy), math.remainder(float(yaw), 2 * math.pi),
+                float(math.hypot(dx, dy) / dt), float(dyaw / dt))
 
     def T_map_base(self, t_s: float) -> np.ndarray:
         from .host import planar_transform
@@ -522,6 +575,11 @@ class McuSimulator:
     endpoint:
         A :class:`PtyEndpoint`, :class:`TcpServerEndpoint` or :class:`SerialEndpoint` (closed by ``stop()`` only if
         ``close_endpoint``).
+    path:
+        Ground truth ``T_map_base`` over time (MCU clock, seconds since the simulator started): a
+        :class:`PlanarPath` (default) or a :class:`SampledPath` (e.g. a simulator robot trajectory).
+    odometry:
+        The wheel odometry model (default: :class:`OdometryModel` seeded with ``seed``).
     odom_rate_hz, heartbeat_period_s:
         Odometry and heartbeat rates.
     reloc_period_s:
@@ -543,15 +601,18 @@ class McuSimulator:
         the host accepted is exactly what was sent.
     """
 
-    def __init__(self, endpoint, *, path: PlanarPath | None = None, odometry: OdometryModel | None = None,
-                 odom_rate_hz: float = 50.0, heartbeat_period_s: float = 0.5, reloc_period_s: float = 2.0,
+    def __init__(self, endpoint, *, path: PlanarPath | SampledPath | None = None,
+                 odometry: OdometryModel | None = None, odom_rate_hz: float = 50.0, heartbeat_period_s: float = 0.5,
+                 reloc_period_s: float = 2.0,
                  ack_timeout_s: float = 0.25, max_retries: int = 4, pose_timeout_s: float = 2.0,
                  host_timeout_s: float = 1.5, clock_drift_ppm: float = 30.0, seed: int = 0,
                  pose_tolerance_m: float = 0.05, pose_tolerance_deg: float = 2.0, faults: FaultInjector | None = None,
                  silent_after_s: float | None = None, silent_for_s: float = 0.0, flood_hz: float = 0.0,
                  write_timeout_s: float = 0.05, close_endpoint: bool = True, record_sent: int = 0):
         if odom_rate_hz <= 0 or heartbeat_period_s <= 0:
-            raise ValueError(f"odom_rate_hz, heartbeat_period_s: expected > 0, got {odom_rate_hz}, {heartbeat_period_s}")
+            raise ValueError(
+                f"odom_rate_hz, heartbeat_period_s: expected > 0, got {odom_rate_hz}, {heartbeat_period_s}"
+            )
         self.endpoint = endpoint
         self.path = path or PlanarPath()
         self.odometry = odometry or OdometryModel(seed=seed)

@@ -11,7 +11,7 @@ from click.testing import CliRunner
 
 from firmware_bridge import HostBridge
 from firmware_bridge.host import planar_transform
-from firmware_bridge.mcu_sim import FaultInjector, OdometryModel, PlanarPath, open_endpoint
+from firmware_bridge.mcu_sim import FaultInjector, OdometryModel, PlanarPath, SampledPath, open_endpoint
 from reloc.transforms import invert, pose_error
 
 
@@ -63,6 +63,32 @@ def test_default_odometry_drifts_and_its_covariance_grows():
         assert np.all(np.linalg.eigvalsh(run[-1][3]) > 0)
     assert np.mean(late) > 3 * np.mean(early)
     assert 0.01 < np.mean(late) < 1.0  # realistic wheel odometry: centimetres to decimetres after 11 m
+
+
+def test_sampled_path_follows_a_simulator_robot_trajectory():
+    from reloc.config import Config
+    from sim.scenes import make_scene
+    from sim.trajectories import robot
+
+    T_base_cam = np.asarray(Config().camera.T_base_cam).reshape(4, 4)
+    T_world_cam = robot(make_scene("living_room"), 120, seed=0, rate_hz=30.0)
+    path = SampledPath.from_T_world_cam(T_world_cam, 30.0, T_base_cam)
+    for i in (0, 17, 60, 119):
+        T_cam_est = path.T_map_base(i / 30.0) @ T_base_cam
+        # Same camera position in the floor plane and same viewing heading (pitch and roll are not planar).
+        assert np.allclose(T_cam_est[:2, 3], T_world_cam[i][:2, 3], atol=0.02)
+        fwd_est, fwd_true = T_cam_est[:2, 2], T_world_cam[i][:2, 2]
+        cos = fwd_est @ fwd_true / np.linalg.norm(fwd_est) / np.linalg.norm(fwd_true)
+        assert cos > math.cos(math.radians(1.0))
+    x, y, yaw, v, w = path.state(1000.0)  # after the end the base stands still
+    assert (v, w) == (0.0, 0.0)
+    # Perfect odometry along it reproduces it (turns on the spot included).
+    for _, est, true, _ in drive(OdometryModel.perfect(), path, 4.0)[::20]:
+        assert pose_error(est, true)[0] < 1e-9
+    with pytest.raises(ValueError, match="T_world_cam"):
+        SampledPath.from_T_world_cam(np.eye(4), 30.0, T_base_cam)
+    with pytest.raises(ValueError, match="t_s"):
+        SampledPath([0.0, 0.0], [0, 0], [0, 0], [0, 0])
 
 
 def test_fault_injector_rates_match_their_settings():
