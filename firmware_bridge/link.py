@@ -105,6 +105,13 @@ class SerialLink:
     ):
         if not isinstance(url, str) or not url:
             raise ValueError(f"url: expected a pyserial URL or device path, got {url!r}")
+        if "://" in url and opener is None:
+            import importlib.util
+
+            scheme = url.split("://", 1)[0].lower().replace("-", "_")
+            if not scheme.isidentifier() or importlib.util.find_spec(f"serial.urlhandler.protocol_{scheme}") is None:
+                raise ValueError(f"url: pyserial has no handler for {scheme!r} in {url!r} "
+                                 "(expected a device path, loop://, socket://HOST:PORT, rfc2217://, ...)")
         if read_timeout_s <= 0 or write_timeout_s <= 0:
             raise ValueError(f"read_timeout_s, write_timeout_s: expected > 0, got {read_timeout_s}, {write_timeout_s}")
         backoff = tuple(float(b) for b in reconnect_backoff_s)

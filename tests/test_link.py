@@ -209,6 +209,8 @@ def test_write_timeout_is_counted_and_not_fatal(tmp_path):
 def test_bridge_rejects_bad_input():
     with pytest.raises(ValueError, match="url"):
         HostBridge("")
+    with pytest.raises(ValueError, match="no handler for 'nosuch'"):
+        HostBridge("nosuch://x")
     with pytest.raises(ValueError, match="pose_rate_hz"):
         HostBridge("loop://", pose_rate_hz=0)
     from reloc.config import Config
