@@ -146,7 +146,7 @@ def run_latency(kind: str, n_requests: int, odom_rate_hz: float) -> dict:
     sync_err = []
     with bridge, sim:
         deadline = time.monotonic() + 10
-        while not (bridge.connected and bridge.clock.synced) and time.monotonic() < deadline:
+        while not (bridge.connected and bridge.clock_synced) and time.monotonic() < deadline:
             time.sleep(0.01)
         for i in range(n_requests):
             sim.request_relocalization()

@@ -198,9 +198,12 @@ class HostBridge:
         self._mcu_last_rx_ns: int | None = None
         self._mcu_alive = False
         self._mcu_state: int | None = None
-        self._mcu_uptime_ms: int | None = None
+        self._mcu_uptime_ms: tuple[int, int] | None = None  # (uptime_ms of the last MCU heartbeat, our rx time)
         self._mcu_hb: tuple[int, int] | None = None  # (stamp of the last MCU heartbeat, our arrival time)
         self._last_echo_used = 0
+        # After a (re)connection the MCU may have rebooted (a USB device usually has): its clock mapping is only
+        # trusted again once its first heartbeat on the new connection has been checked for a restart.
+        self._clock_verified = False
         self._requests_seen: dict[int, int] = {}
         self._last_pose_ns: int | None = None
         self._pending_pose_acks: dict[int, int] = {}  # seq -> send time
@@ -310,11 +313,18 @@ class HostBridge:
         step = planar_transform(o.vx_mps * dt, o.vy_mps * dt, o.omega_radps * dt)
         return T @ step
 
+    @property
+    def clock_synced(self) -> bool:
+        """The MCU clock mapping is established and verified on the current connection."""
+        return self._clock_verified and self.clock.synced
+
     def mcu_to_host_ns(self, mcu_ns: int) -> int | None:
-        return self.clock.mcu_to_host_ns(mcu_ns)
+        """Host time of an MCU stamp; None before any clock sample (or before the MCU's first heartbeat after a
+        reconnection, when it may have rebooted)."""
+        return self.clock.mcu_to_host_ns(mcu_ns) if self._clock_verified else None
 
     def host_to_mcu_ns(self, host_ns: int) -> int | None:
-        return self.clock.host_to_mcu_ns(host_ns)
+        return self.clock.host_to_mcu_ns(host_ns) if self._clock_verified else None
 
     # -- what the live loop sends ------------------------------------------------------------------------------
     def send_pose(
@@ -334,7 +344,7 @@ class HostBridge:
                     self.counters["poses_rate_limited"] += 1
                     return SendResult.RATE_LIMITED
         flags, stamp = 0, int(stamp_ns)
-        if self.clock.synced:
+        if self.clock_synced:
             stamp = self.clock.host_to_mcu_ns(stamp)
             flags |= PoseFlags.STAMP_MCU_CLOCK
         msg = RelocPose.from_transform(
@@ -384,7 +394,7 @@ class HostBridge:
         out["mcu_alive"] = self.mcu_alive
         out["mcu_state"] = None if self._mcu_state is None else _enum_name(McuState, self._mcu_state)
         out["clock"] = self.clock.summary()
-        out["clock_synced"] = self.clock.synced
+        out["clock_synced"] = self.clock_synced
         return out
 
     # -- internals ---------------------------------------------------------------------------------------------
@@ -428,6 +438,7 @@ class HostBridge:
     def _on_connect(self) -> None:
         with self._lock:
             self._mcu_hb = None
+            self._clock_verified = False
             # Request ids restart when the firmware does; a pending id from before is answered again if repeated.
             self._requests_seen.clear()
         # Tell the MCU at once who we are and how we are.
@@ -461,8 +472,16 @@ class HostBridge:
 
     def _on_heartbeat(self, packet: Packet, hb: Heartbeat, rx_ns: int) -> None:
         self.counters["heartbeats_in"] += 1
-        prev_uptime = self._mcu_uptime_ms
-        if prev_uptime is not None and hb.uptime_ms + 1000 < prev_uptime and hb.uptime_ms < 60_000:
+        prev = self._mcu_uptime_ms
+        restarted = False
+        if prev is not None:
+            # The MCU's uptime must have advanced as much as our clock did since its last heartbeat (modulo the
+            # u32 wrap, within 0.5 s + 1 %); anything else is a restart of its clock.
+            prev_uptime, prev_rx = prev
+            elapsed_ms = (rx_ns - prev_rx) / 1e6
+            advanced_ms = (hb.uptime_ms - prev_uptime) % (1 << 32)
+            restarted = not (elapsed_ms - 500 <= advanced_ms <= elapsed_ms * 1.01 + 500)
+        if restarted:
             # The MCU clock restarted: its old stamps and its odometry origin mean nothing now.
             self.clock.reset()
             with self._lock:
@@ -471,9 +490,11 @@ class HostBridge:
                 self._odo_reset_count = None
                 self._requests_seen.clear()
             self.counters["mcu_reboots"] += 1
-            self._raise_event("mcu_reboot", f"uptime went from {prev_uptime} ms to {hb.uptime_ms} ms")
-        self._mcu_uptime_ms = hb.uptime_ms
+            self._raise_event("mcu_reboot", f"uptime {hb.uptime_ms} ms, expected about "
+                                            f"{prev_uptime + elapsed_ms:.0f} ms: the MCU restarted")
+        self._mcu_uptime_ms = (hb.uptime_ms, rx_ns)
         self._mcu_state = hb.state
+        self._clock_verified = True
         with self._lock:
             self._mcu_hb = (packet.stamp_ns, rx_ns)
         if hb.echo_stamp_ns and hb.echo_stamp_ns != self._last_echo_used:
@@ -483,8 +504,8 @@ class HostBridge:
 
     def _on_odometry(self, odo: WheelOdometry, rx_ns: int, seq: int = 0) -> None:
         self.counters["odometry"] += 1
-        stamp = self.clock.mcu_to_host_ns(odo.stamp_ns)
-        synced = self.clock.synced
+        synced = self._clock_verified and self.clock.synced
+        stamp = self.clock.mcu_to_host_ns(odo.stamp_ns) if self._clock_verified else None
         if stamp is None:
             stamp = rx_ns
         ev = OdometryEvent(odo, stamp, rx_ns, synced, seq)
@@ -524,7 +545,7 @@ class HostBridge:
         self.link.send(Ack(MsgType.RELOC_REQUEST, result, packet.seq, req.request_id))
         if duplicate:
             return
-        stamp = self.clock.mcu_to_host_ns(packet.stamp_ns)
+        stamp = self.clock.mcu_to_host_ns(packet.stamp_ns) if self._clock_verified else None
         ev = RelocRequestEvent(req.request_id, req.reason, rx_ns if stamp is None else stamp, rx_ns)
         self._put(ev)
         if self.on_reloc_request is not None:
@@ -537,7 +558,7 @@ class HostBridge:
         echo_stamp, hold = (0, 0) if hb is None else (hb[0], now - hb[1])
         rx_errors = min(self.link.decoder.stats.frames_bad, 0xFFFF)
         msg = Heartbeat(
-            self._status.state, HeartbeatFlags.CLOCK_SYNCED if self.clock.synced else 0, rx_errors,
+            self._status.state, HeartbeatFlags.CLOCK_SYNCED if self.clock_synced else 0, rx_errors,
             ((now - self._t0_ns) // 1_000_000) & 0xFFFFFFFF, echo_stamp, hold,
         )
         if self.link.send(msg, now) is not None:

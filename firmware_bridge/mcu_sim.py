@@ -736,6 +736,7 @@ class McuSimulator:
             self.decoder.reset()
             self.counters["connections"] += 1
             self._send_raw(b"\x00")
+            self._next_hb = self.now_mcu_ns()  # a heartbeat right away (docs/protocol.md, 5.1)
         if data:
             rx = self.now_mcu_ns()
             for packet in self.decoder.feed(data):

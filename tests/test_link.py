@@ -78,7 +78,7 @@ def _bridge_with_relocalizer(url: str, **kw):
 
 def _check_exchange(bridge: HostBridge, sim: McuSimulator, *, poses: int):
     assert wait_until(lambda: sim.counters["poses_ok"] >= poses, 15.0), sim.stats()
-    assert wait_until(lambda: bridge.clock.synced, 10.0)
+    assert wait_until(lambda: bridge.clock_synced, 10.0)
     # The clock mapping against the simulator's truth (it runs 40 ppm fast and started at 0).
     host_now = time.monotonic_ns()
     mcu_now = sim.clock.mcu_from_host_ns(host_now)
@@ -129,6 +129,14 @@ def test_pty_exchange_with_unplug_and_replug(tmp_path):
     assert not bridge.link.alive
 
 
+class SilentAtBootSim(McuSimulator):
+    """Sends no heartbeat during its first second."""
+
+    def _send_heartbeat(self, now: int) -> None:
+        if now > 1_000_000_000:
+            super()._send_heartbeat(now)
+
+
 def test_socket_server_going_away_and_coming_back():
     server = TcpServerEndpoint("127.0.0.1", 0)
     port = server.port
@@ -138,15 +146,21 @@ def test_socket_server_going_away_and_coming_back():
     with bridge, sim:
         assert wait_until(lambda: bridge.connected, 5.0)
         _check_exchange(bridge, sim, poses=2)
+        assert wait_until(lambda: sim.now_mcu_ns() > 2_000_000_000, 5.0)
         sim.stop()  # the server goes away
         assert wait_until(lambda: any(e.kind == "disconnected" for e in events), 5.0)
         assert wait_until(lambda: bridge.link.stats.open_failures >= 1, 5.0)
-        sim2 = McuSimulator(TcpServerEndpoint("127.0.0.1", port), reloc_period_s=0.3, seed=4)
-        sim2.clock = sim.clock
+        # It comes back as a rebooted MCU: its clock starts again from 0 and runs at another rate, and (a careless
+        # firmware) it asks for poses before sending its first heartbeat. The host must not map its stamps with the
+        # old clock offset meanwhile.
+        sim2 = SilentAtBootSim(TcpServerEndpoint("127.0.0.1", port), reloc_period_s=0.3, clock_drift_ppm=60.0, seed=4)
         reloc.sim = sim2
         with sim2:
             assert wait_until(lambda: bridge.connected, 5.0)
-            _check_exchange(bridge, sim2, poses=2)
+            assert wait_until(lambda: sim2.counters["poses_received"] >= 2, 5.0)
+            assert wait_until(lambda: bridge.stats()["mcu_reboots"] == 1, 5.0)
+            _check_exchange(bridge, sim2, poses=5)  # the clock mapping was rebuilt for the new clock
+            assert sim2.counters["poses_unsynced"] >= 2  # the early answers went out in host time, flagged so
         assert bridge.stats()["connects"] == 2
 
 
