@@ -1,0 +1,810 @@
+"""The live loop: frames from a source, planes per frame, submaps over a window, relocalization when needed.
+
+Threads (their names are the tracks of the profiler's Chrome trace):
+
+- ``capture``: pulls frames from the source into a bounded :class:`DropOldestQueue` (the oldest frame is dropped,
+  and counted, when processing falls behind); counts gaps in the source's ``seq``, stalls, disconnects, and
+  reconnects with backoff when the source has ``reconnect()``.
+- ``processing``: per frame, plane extraction, the odometry pose (firmware bridge, else the frame's own odometry,
+  else none), the submap window, the tracking check, and the relocalization triggers. A bad frame is counted by
+  reason and skipped; nothing in one frame stops the loop.
+- ``relocalization``: runs the relocalizer on the newest submap handed to it (a one-slot mailbox: a newer submap
+  replaces one still waiting), so relocalization never blocks capture or extraction.
+- ``serial`` (with a firmware bridge): relocalization requests and odometry resets in, poses and status out.
+
+Relocalization triggers: start-up, a request (firmware or keypress, :meth:`LiveLoop.request_relocalization`), lost
+tracking (an odometry jump, or the current planes disagreeing with the map at the pose predicted from the last
+verified one), retries while lost, and a periodic verification.
+
+Stages are timed with one :class:`reloc.profiling.Profiler`; :meth:`LiveLoop.run` returns a :class:`LiveSummary`.
+"""
+
+from __future__ import annotations
+
+import math
+import queue
+import sys
+import threading
+import time
+from collections import Counter, deque
+from dataclasses import dataclass, field
+from typing import Any, Callable
+
+import numpy as np
+
+from reloc.camera import DepthFrame
+from reloc.live.frame_queue import DropOldestQueue
+from reloc.live.params import LiveParams
+from reloc.live.submap import SubmapWindow
+from reloc.live.tracking import explained_fraction, is_jump, predict_T_map_cam
+from reloc.planeset import PlaneSet
+from reloc.profiling import Profiler
+from reloc.transforms import invert, pose_error
+
+__all__ = ["LiveLoop", "LiveSummary", "RelocRecord", "THREAD_NAMES"]
+
+THREAD_NAMES = ("capture", "processing", "relocalization", "serial", "keyboard")
+_TRUTH_SOURCES = ("groundtruth", "ground_truth")
+
+
+@dataclass(frozen=True)
+class RelocRecord:
+    """One relocalization: what triggered it, the frame it holds for, and what came out."""
+
+    index: int
+    trigger: str
+    seq: int
+    stamp_ns: int
+    status: str
+    reason: str
+    T_map_cam: np.ndarray | None
+    score: float
+    submap_frames: int
+    submap_planes: int
+    reloc_ms: float
+    capture_to_pose_ms: float
+    request_ids: tuple = ()
+    position_error_m: float | None = None  # against the frame's ground truth, when the source has it
+    rotation_error_deg: float | None = None
+
+    @property
+    def ok(self) -> bool:
+        return self.status == "relocalized"
+
+    def to_dict(self) -> dict:
+        return {
+            "index": self.index, "trigger": self.trigger, "seq": self.seq, "stamp_ns": self.stamp_ns,
+            "status": self.status, "reason": self.reason,
+            "T_map_cam": None if self.T_map_cam is None else np.round(self.T_map_cam, 9).tolist(),
+            "score": _num(self.score), "submap_frames": self.submap_frames, "submap_planes": self.submap_planes,
+            "reloc_ms": round(self.reloc_ms, 3), "capture_to_pose_ms": round(self.capture_to_pose_ms, 3),
+            "request_ids": list(self.request_ids),
+            "position_error_m": _num(self.position_error_m), "rotation_error_deg": _num(self.rotation_error_deg),
+        }
+
+
+def _num(x):
+    if x is None:
+        return None
+    x = float(x)
+    return round(x, 6) if math.isfinite(x) else None
+
+
+@dataclass
+class LiveSummary:
+    """What a run did (``to_dict()`` is the JSON of ``reloc run --summary``)."""
+
+    source: dict
+    duration_s: float
+    cpu_s: float
+    frames: dict
+    source_events: dict
+    odometry: dict
+    tracking: dict
+    relocalizations: list[RelocRecord]
+    latency_ms: dict
+    end_to_end_ms: dict
+    bridge: dict | None = None
+    faults: dict | None = None
+    errors: list[str] = field(default_factory=list)
+
+    @property
+    def relocs_ok(self) -> int:
+        return sum(r.ok for r in self.relocalizations)
+
+    def to_dict(self) -> dict:
+        return {
+            "source": self.source, "duration_s": round(self.duration_s, 3), "cpu_s": round(self.cpu_s, 3),
+            "frames": self.frames, "source_events": self.source_events, "odometry": self.odometry,
+            "tracking": self.tracking,
+            "relocalizations_ok": self.relocs_ok,
+            "relocalizations_failed": len(self.relocalizations) - self.relocs_ok,
+            "relocalizations": [r.to_dict() for r in self.relocalizations],
+            "latency_ms": self.latency_ms, "end_to_end_ms": self.end_to_end_ms,
+            "bridge": self.bridge, "faults": self.faults, "errors": self.errors,
+        }
+
+
+@dataclass
+class _Job:
+    trigger: str
+    submap: PlaneSet
+    submap_frames: int
+    seq: int
+    stamp_ns: int
+    t_cap_ns: int
+    T_odom_cam: np.ndarray | None
+    T_truth: np.ndarray | None
+    request_ids: tuple = ()
+
+
+class _Mailbox:
+    """One pending relocalization job; a newer one replaces it (keeping the request ids to answer)."""
+
+    def __init__(self) -> None:
+        self._job: _Job | None = None
+        self._busy = False
+        self._cond = threading.Condition()
+        self.superseded = 0
+
+    def submit(self, job: _Job) -> None:
+        with self._cond:
+            if self._job is not None:
+                self.superseded += 1
+                job.request_ids = tuple(dict.fromkeys(self._job.request_ids + job.request_ids))
+                if self._job.trigger not in job.trigger.split("+"):
+                    job.trigger = f"{self._job.trigger}+{job.trigger}"
+            self._job = job
+            self._cond.notify_all()
+
+    def take(self, timeout_s: float) -> _Job | None:
+        with self._cond:
+            if self._job is None:
+                self._cond.wait(timeout_s)
+            job, self._job = self._job, None
+            if job is not None:
+                self._busy = True
+            return job
+
+    def done(self) -> None:
+        with self._cond:
+            self._busy = False
+            self._cond.notify_all()
+
+    @property
+    def idle(self) -> bool:
+        with self._cond:
+            return self._job is None and not self._busy
+
+    def wait_idle(self, timeout_s: float, stop: threading.Event) -> bool:
+        end = time.monotonic() + timeout_s
+        with self._cond:
+            while (self._job is not None or self._busy) and not stop.is_set():
+                left = end - time.monotonic()
+                if left <= 0:
+                    return False
+                self._cond.wait(min(left, 0.1))
+            return True
+
+
+class LiveLoop:
+    """Composes a frame source, plane extraction and a relocalizer into the live loop (module docstring).
+
+    Parameters
+    ----------
+    source:
+        A :class:`drivers.source.FrameSource` (or any iterable of :class:`DepthFrame` with ``info()``); its
+        ``reconnect()``, when present, is called with backoff after the stream breaks.
+    extract:
+        ``extract(frame) -> result`` with ``result.planes`` (PlaneSet, camera frame) and ``result.timings_ms``.
+    relocalizer:
+        Has ``locate(submap: PlaneSet) -> result`` with ``status`` ("relocalized" or a rejection), ``reason``,
+        ``T_map_cam`` (4x4 or None), ``score`` and optionally ``timings_ms``.
+    params:
+        :class:`LiveParams`.
+    map_planes:
+        The map as a PlaneSet (map frame), for the tracking check; None disables that check.
+    bridge:
+        A started :class:`firmware_bridge.HostBridge` (or None): odometry and requests in, poses and status out.
+    odometry:
+        "auto" (bridge odometry when it has some, else a frame pose whose ``pose_source`` is "odometry"),
+        "bridge", "source" (any frame pose, ground truth included: for simulations), or "none".
+    profiler:
+        Shared :class:`Profiler` (a fresh one when None).
+    on_status:
+        Called with each status line (at most every ``params.status_period_s``); None prints nothing.
+    keyboard:
+        Read stdin when it is a terminal: Enter relocalizes, ``q`` Enter stops.
+    clock_ns:
+        Host clock of capture stamps (the bridge's clock must be the same).
+    """
+
+    def __init__(self, source, extract: Callable[[DepthFrame], Any], relocalizer, *, params: LiveParams | None = None,
+                 map_planes: PlaneSet | None = None, bridge=None, odometry: str = "auto",
+                 profiler: Profiler | None = None, on_status: Callable[[str], None] | None = None,
+                 keyboard: bool = False, clock_ns: Callable[[], int] = time.monotonic_ns):
+        if odometry not in ("auto", "bridge", "source", "none"):
+            raise ValueError(f"odometry: expected 'auto', 'bridge', 'source' or 'none', got {odometry!r}")
+        if not hasattr(relocalizer, "locate"):
+            raise ValueError(f"relocalizer: expected an object with locate(submap), got {type(relocalizer).__name__}")
+        if not callable(extract):
+            raise ValueError(f"extract: expected a callable frame -> result, got {type(extract).__name__}")
+        self.source = source
+        self.extract = extract
+        self.relocalizer = relocalizer
+        self.params = params or LiveParams()
+        self.map_planes = map_planes
+        self.bridge = bridge
+        self.odometry_mode = odometry
+        self.profiler = profiler or Profiler()
+        self.on_status = on_status
+        self.keyboard = keyboard
+        self.clock_ns = clock_ns
+        self.T_base_cam = self.params.T_base_cam
+        self.T_cam_base = invert(self.T_base_cam)
+
+        self._queue = DropOldestQueue(self.params.queue_frames)
+        self._mailbox = _Mailbox()
+        self._window = SubmapWindow(self.params.window_frames)
+        self._outbox: queue.Queue = queue.Queue(maxsize=64)
+        self._stop = threading.Event()  # stop everything now (Ctrl-C, duration, stop())
+        self._processing_done = threading.Event()
+        self._workers_stop = threading.Event()
+        self._lock = threading.Lock()
+        self._threads: list[threading.Thread] = []
+        self._requests: list[tuple[str, int]] = []  # (trigger, request id or 0) waiting for the next frame
+
+        # Counters (each written by one thread; read under the lock for the status line and summary).
+        self.captured = 0
+        self.processed = 0
+        self.planes_ok = 0
+        self.source_gaps = 0
+        self.stalls = 0
+        self.disconnects = 0
+        self.reconnects = 0
+        self.reconnect_failures = 0
+        self.source_end = "running"
+        self.bad: Counter[str] = Counter()
+        self.odometry_used: Counter[str] = Counter()
+        self.odometry_jumps = 0
+        self.odometry_resets = 0
+        self.lost_events: Counter[str] = Counter()
+        self.relocalizations: list[RelocRecord] = []
+        self.events: deque[str] = deque(maxlen=200)
+        self.errors: list[str] = []
+        self.state = "starting"  # starting | localized | searching
+        self.last_error = ""
+
+        self._verified: tuple[np.ndarray, np.ndarray | None, int] | None = None  # (T_map_cam, T_odom_cam, seq)
+        self._prev_odom: tuple[str, np.ndarray, int] | None = None  # (kind, T_odom_cam, seq)
+        self._odom_reset_pending = False
+        self._bad_streak = 0
+        self._last_attempt_s: float | None = None
+        self._last_ok_s: float | None = None
+        self._t_start = 0.0
+
+    # -- control -----------------------------------------------------------------------------------------------
+    def stop(self) -> None:
+        """Stop as soon as possible (thread-safe; signal handlers call it)."""
+        self._stop.set()
+        self._queue.close()
+
+    def request_relocalization(self, trigger: str = "manual", request_id: int = 0) -> None:
+        """Relocalize with the next frame's submap (thread-safe); ``request_id`` is answered over serial."""
+        with self._lock:
+            self._requests.append((trigger, int(request_id)))
+
+    def run(self, *, max_frames: int | None = None, duration_s: float | None = None) -> LiveSummary:
+        """Run until the source ends, ``max_frames`` frames were captured, ``duration_s`` passed, or :meth:`stop`.
+
+        Frames already queued are still processed and a pending relocalization finishes when the source ends or
+        ``max_frames`` is reached; after :meth:`stop`, Ctrl-C or ``duration_s`` the loop stops at once. Every
+        thread is joined before this returns.
+        """
+        if max_frames is not None and (not isinstance(max_frames, int) or max_frames < 1):
+            raise ValueError(f"max_frames: expected a positive integer, got {max_frames!r}")
+        if duration_s is not None and not duration_s > 0:
+            raise ValueError(f"duration_s: expected > 0, got {duration_s!r}")
+        self._t_start = time.monotonic()
+        cpu0 = time.process_time()
+        targets = [("capture", lambda: self._capture(max_frames)), ("processing", self._processing),
+                   ("relocalization", self._relocalization)]
+        if self.bridge is not None:
+            targets.append(("serial", self._serial))
+        if self.keyboard and _stdin_is_tty():
+            targets.append(("keyboard", self._keyboard))
+        self._threads = [threading.Thread(target=self._guard(fn, name), name=name, daemon=True) for name, fn in targets]
+        try:
+            for t in self._threads:
+                t.start()
+            next_status = time.monotonic() + self.params.status_period_s
+            last = (time.monotonic(), 0)
+            while not self._workers_stop.is_set():
+                now = time.monotonic()
+                if duration_s is not None and now - self._t_start >= duration_s:
+                    self.stop()
+                    break
+                wait = next_status - now
+                if duration_s is not None:
+                    wait = min(wait, self._t_start + duration_s - now)
+                self._workers_stop.wait(max(wait, 0.0))
+                now = time.monotonic()
+                if now >= next_status:
+                    fps = (self.processed - last[1]) / max(now - last[0], 1e-9)
+                    last = (now, self.processed)
+                    if self.on_status is not None:
+                        self.on_status(self.status_line(fps))
+                    next_status = now + self.params.status_period_s
+        except KeyboardInterrupt:
+            self.events.append("interrupted")
+            self.stop()
+        finally:
+            self._shutdown()
+        return self.summary(time.monotonic() - self._t_start, time.process_time() - cpu0)
+
+    # -- threads -----------------------------------------------------------------------------------------------
+    def _guard(self, fn, name):
+        def run():
+            try:
+                fn()
+            except Exception as exc:  # noqa: BLE001 - a dying thread must stop the loop, not hang it
+                self.errors.append(f"{name}: {exc!r}")
+                self.last_error = f"{name}: {exc!r}"
+                self.stop()
+                self._workers_stop.set()
+        return run
+
+    def _capture(self, max_frames: int | None) -> None:
+        prof = self.profiler
+        reconnect = getattr(self.source, "reconnect", None)
+        it = iter(self.source)
+        last_seq = last_cap = None
+        tag = None  # a trigger attached to the next frame
+        try:
+            while not self._stop.is_set():
+                t0 = time.perf_counter_ns()
+                try:
+                    frame = next(it)
+                except StopIteration:
+                    self.source_end = "end_of_stream"
+                    break
+                except Exception as exc:  # noqa: BLE001 - a camera failing mid-stream is an event, not a crash
+                    self.disconnects += 1
+                    self._event(f"source disconnected: {exc}")
+                    if not callable(reconnect) or not self._reconnect(reconnect):
+                        self.source_end = "disconnected" if not self._stop.is_set() else "stopped"
+                        break
+                    it = iter(self.source)
+                    last_cap = None
+                    tag = "reconnect"  # the robot may have moved while the camera was away
+                    continue
+                t_cap = self.clock_ns()
+                prof.record("capture.wait", t0, time.perf_counter_ns() - t0)
+                if not isinstance(frame, DepthFrame):
+                    self.bad[f"not_a_frame:{type(frame).__name__}"] += 1
+                    continue
+                if last_seq is not None and frame.seq > last_seq + 1:
+                    self.source_gaps += frame.seq - last_seq - 1
+                if last_cap is not None and t_cap - last_cap > self.params.stall_s * 1e9:
+                    self.stalls += 1
+                    self._event(f"source stalled {(t_cap - last_cap) / 1e9:.2f} s before seq {frame.seq}")
+                last_seq, last_cap = frame.seq, t_cap
+                self.captured += 1
+                self._queue.put((frame, t_cap, tag))
+                tag = None
+                if max_frames is not None and self.captured >= max_frames:
+                    self.source_end = "max_frames"
+                    break
+            else:
+                self.source_end = "stopped"
+        finally:
+            self._queue.close()
+
+    def _reconnect(self, reconnect) -> bool:
+        backoff = self.params.reconnect_backoff_s
+        k = 0
+        while not self._stop.is_set():
+            if self._stop.wait(backoff[min(k, len(backoff) - 1)]):
+                return False
+            try:
+                ok = bool(reconnect())
+            except Exception as exc:  # noqa: BLE001
+                ok = False
+                self._event(f"reconnect failed: {exc}")
+            if ok:
+                self.reconnects += 1
+                self._event("source reconnected")
+                with self._lock:
+                    self._window.reset()  # frames across the gap have no common odometry we can trust
+                return True
+            self.reconnect_failures += 1
+            k += 1
+        return False
+
+    def _processing(self) -> None:
+        try:
+            while not self._stop.is_set():
+                item = self._queue.get(timeout_s=0.1)
+                if item is None:
+                    if self._queue.finished:
+                        break
+                    continue
+                frame, t_cap, tag = item
+                if tag is not None:
+                    self.request_relocalization(tag)
+                self._process(frame, t_cap)
+            if not self._stop.is_set():
+                # The source ended: let a pending relocalization finish so its result is reported.
+                self._mailbox.wait_idle(30.0, self._stop)
+        finally:
+            self._processing_done.set()
+            self._workers_stop.set()
+
+    def _process(self, frame: DepthFrame, t_cap: int) -> None:
+        prof = self.profiler
+        self.processed += 1
+        depth = frame.depth_m
+        if not np.any(depth > 0):  # NaN compares False: all-NaN and all-zero frames have no measurement
+            self.bad["no_valid_depth"] += 1
+            return
+        t0 = time.perf_counter_ns()
+        try:
+            result = self.extract(frame)
+            planes = result.planes
+            if not isinstance(planes, PlaneSet):
+                raise TypeError(f"extraction returned {type(planes).__name__}, expected a PlaneSet")
+        except Exception as exc:  # noqa: BLE001 - one bad frame never stops the loop
+            self.bad[f"extraction_error:{type(exc).__name__}"] += 1
+            self.last_error = f"seq {frame.seq}: {exc}"
+            return
+        t1 = time.perf_counter_ns()
+        prof.record("extract", t0, t1 - t0)
+        timings = {k: v for k, v in getattr(result, "timings_ms", {}).items() if k != "total"}
+        prof.add_timings_ms(timings, prefix="extract.", end_ns=t1)
+        self.planes_ok += 1
+        prof.record("latency.capture_to_planes", t1 - (self.clock_ns() - t_cap), self.clock_ns() - t_cap)
+
+        with prof.stage("submap"):
+            T_odom_cam, odo_kind = self._odometry_pose(frame, t_cap)
+            self.odometry_used[odo_kind] += 1
+            lost_trigger = None
+            if self._odom_reset_pending:
+                self._odom_reset_pending = False
+                self._prev_odom = None
+                self._window.reset()
+                self._verified = None
+                lost_trigger = "odometry_reset"
+            if T_odom_cam is not None and self._prev_odom is not None and self._prev_odom[0] == odo_kind:
+                # Frames dropped in between allow proportionally more motion.
+                k = max(1, frame.seq - self._prev_odom[2])
+                if is_jump(self._prev_odom[1], T_odom_cam, k * self.params.lost_jump_m, k * self.params.lost_jump_rad):
+                    self.odometry_jumps += 1
+                    self._window.reset()
+                    self._verified = None
+                    lost_trigger = "odometry_jump"
+            self._prev_odom = None if T_odom_cam is None else (odo_kind, T_odom_cam, frame.seq)
+            self._window.push(planes, T_odom_cam, frame.seq)
+            submap = self._window.build()
+
+        T_pred = None
+        with prof.stage("track"):
+            verified = self._verified
+            if verified is not None and T_odom_cam is not None and verified[1] is not None:
+                T_pred = predict_T_map_cam(verified[0], verified[1], T_odom_cam)
+                if self.map_planes is not None:
+                    frac = explained_fraction(planes, T_pred, self.map_planes,
+                                              max_angle_rad=self.params.check_max_angle_rad,
+                                              max_offset_m=self.params.check_max_offset_m)
+                    if frac < self.params.lost_min_explained:  # NaN (no planes) is no evidence
+                        self._bad_streak += 1
+                    elif frac == frac:
+                        self._bad_streak = 0
+                    if self._bad_streak >= self.params.lost_frames:
+                        self._bad_streak = 0
+                        self._verified = None
+                        T_pred = None
+                        lost_trigger = lost_trigger or "tracking_lost"
+        if lost_trigger is not None:
+            self.lost_events[lost_trigger] += 1
+            self.state = "searching"
+            self._event(f"lost ({lost_trigger}) at seq {frame.seq}")
+        if T_pred is not None and self.bridge is not None:
+            self._post(("tracked", T_pred, frame.stamp_ns if _host_clock(frame, t_cap) else t_cap, 0.0, 0))
+
+        trigger, request_ids = self._trigger(lost_trigger)
+        if trigger is not None:
+            truth = frame.T_world_cam if frame.pose_source in _TRUTH_SOURCES else None
+            self._last_attempt_s = time.monotonic()
+            self._mailbox.submit(_Job(trigger, submap, len(self._window), frame.seq, frame.stamp_ns, t_cap,
+                                      T_odom_cam, truth, request_ids))
+
+    def _trigger(self, lost_trigger: str | None) -> tuple[str | None, tuple]:
+        with self._lock:
+            requests, self._requests = self._requests, []
+        now = time.monotonic()
+        triggers = list(dict.fromkeys(t for t, _ in requests))
+        ids = tuple(i for _, i in requests if i)
+        if lost_trigger is not None:
+            triggers.append(lost_trigger)
+        if not triggers:
+            if self._last_attempt_s is None:
+                triggers.append("startup")
+            elif self.state != "localized":
+                if now - self._last_attempt_s >= self.params.search_period_s and self._mailbox.idle:
+                    triggers.append("search")
+            elif now - (self._last_ok_s or 0.0) >= self.params.reloc_period_s and \
+                    now - self._last_attempt_s >= self.params.reloc_period_s:
+                triggers.append("periodic")
+        return ("+".join(triggers) if triggers else None), ids
+
+    def _relocalization(self) -> None:
+        prof = self.profiler
+        while not self._stop.is_set() and not (self._workers_stop.is_set() and self._mailbox.idle):
+            job = self._mailbox.take(0.1)
+            if job is None:
+                continue
+            try:
+                self._relocalize(job, prof)
+            finally:
+                self._mailbox.done()
+
+    def _relocalize(self, job: _Job, prof: Profiler) -> None:
+        t0 = time.perf_counter_ns()
+        try:
+            res = self.relocalizer.locate(job.submap)
+            status, reason = str(res.status), str(getattr(res, "reason", ""))
+            T = None if res.T_map_cam is None else np.asarray(res.T_map_cam, dtype=np.float64)
+            score = float(getattr(res, "score", float("nan")))
+            timings = {k: v for k, v in (getattr(res, "timings_ms", None) or {}).items() if k != "total"}
+        except Exception as exc:  # noqa: BLE001 - a failing query is a rejection with a reason
+            status, reason, T, score, timings = "error", f"{type(exc).__name__}: {exc}", None, float("nan"), {}
+            self.last_error = f"relocalization: {exc!r}"
+        t1 = time.perf_counter_ns()
+        prof.record("reloc", t0, t1 - t0)
+        prof.add_timings_ms(timings, prefix="reloc.", end_ns=t1)
+        ok = status == "relocalized" and T is not None
+        cap_to_pose = self.clock_ns() - job.t_cap_ns
+        if ok:
+            prof.record("latency.capture_to_pose", t1 - cap_to_pose, cap_to_pose)
+        err_m = err_deg = None
+        if ok and job.T_truth is not None:
+            err_m, err_deg = pose_error(T, job.T_truth)
+        rec = RelocRecord(
+            index=len(self.relocalizations), trigger=job.trigger, seq=job.seq, stamp_ns=job.stamp_ns, status=status,
+            reason=reason, T_map_cam=T if ok else None, score=score, submap_frames=job.submap_frames,
+            submap_planes=len(job.submap), reloc_ms=(t1 - t0) / 1e6, capture_to_pose_ms=cap_to_pose / 1e6,
+            request_ids=job.request_ids, position_error_m=err_m, rotation_error_deg=err_deg,
+        )
+        with self._lock:
+            self.relocalizations.append(rec)
+        now = time.monotonic()
+        if ok:
+            self._verified = (T, job.T_odom_cam, job.seq)
+            self._bad_streak = 0
+            self._last_ok_s = now
+            self.state = "localized"
+        elif self.state == "localized" and job.trigger.startswith("periodic"):
+            pass  # a failed verification alone does not mean lost; the tracking check decides
+        else:
+            self.state = "searching"
+        if self.bridge is not None:
+            stamp = job.stamp_ns if _host_clock_stamp(job.stamp_ns, job.t_cap_ns) else job.t_cap_ns
+            for rid in job.request_ids or (0,):
+                self._post(("reloc", T if ok else None, stamp, score, rid, reason))
+
+    # -- serial ------------------------------------------------------------------------------------------------
+    def _post(self, item) -> None:
+        try:
+            self._outbox.put_nowait(item)
+        except queue.Full:
+            try:
+                self._outbox.get_nowait()
+            except queue.Empty:
+                pass
+            self._outbox.put_nowait(item)
+
+    def _serial(self) -> None:
+        from firmware_bridge.host import BridgeEvent, OdometryEvent, RelocRequestEvent
+        from firmware_bridge.messages import HostState, PoseStatus
+
+        bridge, prof = self.bridge, self.profiler
+        states = {"starting": HostState.STARTING, "localized": HostState.LOCALIZED, "searching": HostState.SEARCHING}
+        next_status = 0.0
+        last_T_map_base = np.eye(4)
+        while not self._workers_stop.is_set() or not self._outbox.empty():
+            ev = bridge.get_event(timeout_s=0.02)
+            while ev is not None:
+                if isinstance(ev, RelocRequestEvent):
+                    self._event(f"relocalization requested by the MCU (id {ev.request_id}, reason {ev.reason})")
+                    self.request_relocalization("request", ev.request_id)
+                elif isinstance(ev, BridgeEvent):
+                    if ev.kind in ("odometry_reset", "mcu_reboot"):
+                        self.odometry_resets += 1
+                        self._odom_reset_pending = True
+                    if ev.kind not in ("mcu_alive",):
+                        self._event(f"serial: {ev.kind} {ev.detail}".strip())
+                elif isinstance(ev, OdometryEvent):
+                    pass  # odometry is read from the bridge's buffer at each frame's capture time
+                ev = bridge.get_event(timeout_s=0)
+            while True:
+                try:
+                    item = self._outbox.get_nowait()
+                except queue.Empty:
+                    break
+                with prof.stage("serial.send_pose"):
+                    if item[0] == "tracked":
+                        _, T_map_cam, stamp, score, rid = item
+                        T_map_base = T_map_cam @ self.T_cam_base
+                        bridge.send_pose(T_map_base, stamp, status=PoseStatus.TRACKED, score=score, request_id=rid)
+                    else:
+                        _, T_map_cam, stamp, score, rid, reason = item
+                        if T_map_cam is not None:
+                            last_T_map_base = T_map_cam @ self.T_cam_base
+                            bridge.send_pose(last_T_map_base, stamp, status=PoseStatus.OK,
+                                             score=score if math.isfinite(score) else 0.0, request_id=rid)
+                        elif rid:
+                            # An answer is owed: a rejection with its reason (the pose field holds the last one).
+                            bridge.send_pose(last_T_map_base, stamp, status=_reject_status(reason, PoseStatus),
+                                             score=0.0, request_id=rid)
+            now = time.monotonic()
+            if now >= next_status:
+                next_status = now + 0.5
+                with self._lock:
+                    ok = sum(r.ok for r in self.relocalizations)
+                    failed = len(self.relocalizations) - ok
+                bridge.send_status(states.get(self.state, HostState.SEARCHING), frames_processed=self.processed,
+                                   relocs_ok=ok, relocs_failed=failed, last_error=self.last_error[:60])
+
+    def _odometry_pose(self, frame: DepthFrame, t_cap: int) -> tuple[np.ndarray | None, str]:
+        mode = self.odometry_mode
+        if mode in ("auto", "bridge") and self.bridge is not None:
+            T_odom_base = self.bridge.T_odom_base_at(frame.stamp_ns if _host_clock(frame, t_cap) else t_cap)
+            if T_odom_base is not None:
+                return T_odom_base @ self.T_base_cam, "bridge"
+        if frame.T_world_cam is not None and (
+                (mode == "auto" and frame.pose_source == "odometry") or mode == "source"):
+            return frame.T_world_cam, f"source:{frame.pose_source}"
+        return None, "none"
+
+    # -- keyboard ----------------------------------------------------------------------------------------------
+    def _keyboard(self) -> None:
+        import select
+
+        while not self._workers_stop.is_set():
+            ready, _, _ = select.select([sys.stdin], [], [], 0.2)
+            if not ready:
+                continue
+            line = sys.stdin.readline()
+            if line == "":  # end of input
+                return
+            if line.strip().lower() in ("q", "quit"):
+                self._event("quit requested from the keyboard")
+                self.stop()
+                return
+            self._event("relocalization requested from the keyboard")
+            self.request_relocalization("keypress")
+
+    # -- shutdown and reporting --------------------------------------------------------------------------------
+    def _shutdown(self) -> None:
+        if self._stop.is_set():
+            self._queue.close()
+        # Processing ends first (it drains the queue unless stopped), then the workers.
+        for t in self._threads:
+            if t.name == "processing":
+                t.join()
+        self._workers_stop.set()
+        for t in self._threads:
+            if t.name == "capture":
+                t.join(5.0)
+                if t.is_alive():
+                    # A source blocked in a read: closing it is the way to wake it.
+                    self._event("capture thread blocked; closing the source")
+                    close = getattr(self.source, "close", None)
+                    if callable(close):
+                        close()
+        for t in self._threads:
+            t.join()
+
+    def _event(self, text: str) -> None:
+        self.events.append(f"{time.monotonic() - self._t_start:8.3f} s  {text}")
+
+    def status_line(self, fps: float) -> str:
+        """One line: fps, per-stage latency (p50), drops, state, last relocalization and its score."""
+        stages = self.profiler.summary()["stages"]
+
+        def p50(name):
+            s = stages.get(name)
+            return f"{s['p50_ms']:.1f}" if s else "-"
+
+        with self._lock:
+            last = self.relocalizations[-1] if self.relocalizations else None
+        if last is None:
+            rel = "none yet"
+        else:
+            rel = f"#{last.index} {last.status} ({last.trigger}) score {last.score:.3g}"
+            if not last.ok:
+                rel += f" [{last.reason}]"
+        return (f"{fps:5.1f} fps | extract {p50('extract')} ms, reloc {p50('reloc')} ms, "
+                f"cap->planes {p50('latency.capture_to_planes')} ms | frames {self.processed}/{self.captured}, "
+                f"dropped {self._queue.dropped}, gaps {self.source_gaps}, bad {sum(self.bad.values())} | "
+                f"{self.state} | last reloc {rel}")
+
+    def summary(self, duration_s: float, cpu_s: float) -> LiveSummary:
+        prof = self.profiler.summary()["stages"]
+        e2e = {}
+        for key, stage in (("capture_to_planes", "latency.capture_to_planes"),
+                           ("capture_to_pose", "latency.capture_to_pose")):
+            s = prof.get(stage)
+            e2e[key] = None if s is None else {k: round(s[k], 3) for k in ("count", "p50_ms", "p95_ms", "p99_ms",
+                                                                           "max_ms", "mean_ms")}
+        latency = {name: {k: (round(v, 4) if isinstance(v, float) else v) for k, v in s.items()}
+                   for name, s in prof.items() if not name.startswith("latency.")}
+        info = self.source.info() if hasattr(self.source, "info") else {"name": str(self.source)}
+        frames = {
+            "captured": self.captured, "processed": self.processed, "with_planes": self.planes_ok,
+            "dropped": self._queue.dropped, "source_gaps": self.source_gaps, "bad": dict(self.bad),
+            "queue_capacity": self._queue.maxlen, "queue_max_depth": self._queue.max_depth,
+            "fps": round(self.processed / duration_s, 3) if duration_s > 0 else None,
+        }
+        bridge = None
+        if self.bridge is not None:
+            try:
+                bridge = _jsonable(self.bridge.stats())
+            except Exception as exc:  # noqa: BLE001
+                bridge = {"error": repr(exc)}
+        faults = None
+        counts = getattr(self.source, "counts", None)
+        if isinstance(counts, dict):
+            faults = dict(counts)
+        return LiveSummary(
+            source=_jsonable(info), duration_s=duration_s, cpu_s=cpu_s, frames=frames,
+            source_events={"end": self.source_end, "disconnects": self.disconnects, "reconnects": self.reconnects,
+                           "reconnect_failures": self.reconnect_failures, "stalls": self.stalls,
+                           "events": list(self.events)},
+            odometry={"used": dict(self.odometry_used), "jumps": self.odometry_jumps, "resets": self.odometry_resets},
+            tracking={"lost": dict(self.lost_events), "superseded_requests": self._mailbox.superseded,
+                      "final_state": self.state},
+            relocalizations=list(self.relocalizations), latency_ms=latency, end_to_end_ms=e2e, bridge=bridge,
+            faults=faults, errors=list(self.errors),
+        )
+
+
+def _reject_status(reason: str, PoseStatus) -> int:
+    r = reason.lower()
+    if "ambig" in r:
+        return PoseStatus.AMBIGUOUS
+    if "few" in r or "planes" in r:
+        return PoseStatus.TOO_FEW_PLANES
+    return PoseStatus.NO_MATCH
+
+
+def _host_clock_stamp(stamp_ns: int, t_cap_ns: int) -> bool:
+    """A source stamp is on the host clock (as the OAK driver's are) when it is within a second of capture time."""
+    return abs(int(stamp_ns) - int(t_cap_ns)) < 1_000_000_000
+
+
+def _host_clock(frame: DepthFrame, t_cap: int) -> bool:
+    return _host_clock_stamp(frame.stamp_ns, t_cap)
+
+
+def _stdin_is_tty() -> bool:
+    try:
+        return sys.stdin is not None and sys.stdin.isatty()
+    except (ValueError, OSError):
+        return False
+
+
+def _jsonable(x):
+    if isinstance(x, dict):
+        return {str(k): _jsonable(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [_jsonable(v) for v in x]
+    if isinstance(x, np.ndarray):
+        return x.tolist()
+    if isinstance(x, (np.integer,)):
+        return int(x)
+    if isinstance(x, (np.floating, float)):
+        return float(x) if math.isfinite(x) else None
+    if isinstance(x, (str, int, bool)) or x is None:
+        return x
+    return str(x)

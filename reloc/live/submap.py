@@ -1,0 +1,75 @@
+"""A sliding window of recent frames' planes, fused into one submap in the newest camera frame with odometry."""
+
+from __future__ import annotations
+
+from collections import deque
+
+import numpy as np
+
+from reloc.planeset import PlaneSet
+from reloc.transforms import invert
+
+__all__ = ["SubmapWindow", "concat_plane_sets"]
+
+
+def concat_plane_sets(sets: list[PlaneSet], frame: str, gravity: np.ndarray | None) -> PlaneSet:
+    """One plane set holding the rows of ``sets`` (all in the same frame ``frame``), samples included."""
+    sets = [s for s in sets if len(s)]
+    if not sets:
+        return PlaneSet.empty(frame=frame, gravity=gravity)
+    if len(sets) == 1:
+        s = sets[0]
+        return PlaneSet(**{k: getattr(s, k) for k in _FIELDS}, sample_points=s.sample_points,
+                        sample_ptr=s.sample_ptr, frame=frame, gravity=gravity)
+    cols = {k: np.concatenate([getattr(s, k) for s in sets]) for k in _FIELDS}
+    sizes = np.concatenate([np.diff(s.sample_ptr) for s in sets])
+    return PlaneSet(**cols, sample_points=np.concatenate([s.sample_points for s in sets]),
+                    sample_ptr=np.concatenate([[0], np.cumsum(sizes)]).astype(np.int64), frame=frame, gravity=gravity)
+
+
+_FIELDS = ("normals", "offsets", "centroids", "counts", "radii", "areas", "covariances", "sums", "scatters")
+
+
+class SubmapWindow:
+    """The planes of the last ``window_frames`` frames with their odometry poses ``T_odom_cam``.
+
+    ``build()`` moves every frame's planes into the newest camera frame (``T_cam_new_cam_i = inv(T_odom_cam_new) @
+    T_odom_cam_i``) and stacks them, so the submap is expressed where the relocalized pose will hold. A frame
+    without odometry restarts the window (its planes cannot be related to the others), as does :meth:`reset`
+    (after an odometry jump or reset). Planes seen in several frames stay separate rows: the matcher's verification
+    counts area, and duplicates of one surface agree with each other.
+    """
+
+    def __init__(self, window_frames: int = 1):
+        if not isinstance(window_frames, int) or window_frames < 1:
+            raise ValueError(f"window_frames: expected a positive integer, got {window_frames!r}")
+        self.window_frames = window_frames
+        self._items: deque[tuple[PlaneSet, np.ndarray | None, int]] = deque(maxlen=window_frames)
+
+    def push(self, planes_cam: PlaneSet, T_odom_cam: np.ndarray | None, seq: int) -> None:
+        """Add a frame's planes (camera frame) and its odometry pose (None when unknown)."""
+        if T_odom_cam is None or (self._items and self._items[-1][1] is None):
+            self._items.clear()
+        self._items.append((planes_cam, None if T_odom_cam is None else np.asarray(T_odom_cam, float), int(seq)))
+
+    def reset(self) -> None:
+        self._items.clear()
+
+    def __len__(self) -> int:
+        return len(self._items)
+
+    @property
+    def seqs(self) -> list[int]:
+        return [s for _, _, s in self._items]
+
+    def build(self) -> PlaneSet:
+        """The submap in the newest frame's camera frame (frame name "cam"), gravity from the newest frame."""
+        if not self._items:
+            return PlaneSet.empty(frame="cam")
+        newest, T_new, _ = self._items[-1]
+        if len(self._items) == 1:
+            return newest
+        T_new_odom = invert(T_new)
+        moved = [p if i == len(self._items) - 1 else p.transformed(T_new_odom @ T, "cam")
+                 for i, (p, T, _) in enumerate(self._items)]
+        return concat_plane_sets(moved, "cam", newest.gravity)

@@ -1,0 +1,292 @@
+"""The live loop on the simulator: relocalization against ground truth, the bounded queue, bad frames, triggers,
+clean shutdown. Small images (160x100), ground-truth planes in place of extraction (so a pose error is the loop's,
+not the extractor's), the real relocalizer, no wall-clock asserts."""
+
+from __future__ import annotations
+
+import threading
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from drivers.sim_source import SimSource
+from drivers.source import FrameSource
+from reloc.live.factory import TruthPlanes, load_plane_map
+from reloc.live.frame_queue import DropOldestQueue
+from reloc.live.loop import THREAD_NAMES, LiveLoop
+from reloc.live.params import LiveParams
+from reloc.live.submap import SubmapWindow
+from reloc.live.tracking import explained_fraction
+from reloc.matching import Relocalizer
+from reloc.transforms import invert, pose_error
+from sim.ground_truth import planes_in_camera, visible_planes
+
+W, H = 160, 100
+POS_TOL_M, ROT_TOL_DEG = 0.1, 2.0
+
+
+@pytest.fixture(scope="module")
+def living_room_map():
+    planes, plane_map = load_plane_map("sim:living_room")
+    return planes, Relocalizer(plane_map)
+
+
+def sim_source(n_frames=60, **kw) -> SimSource:
+    kw.setdefault("rate", "fast")
+    return SimSource("living_room", n_frames=n_frames, camera="oak-d", width=W, height=H, **kw)
+
+
+def loop_threads_alive() -> list[str]:
+    return [t.name for t in threading.enumerate() if t.name in THREAD_NAMES and t.is_alive()]
+
+
+def assert_poses_within_tolerance(summary, min_ok=1, truth=None):
+    """Every accepted pose within tolerance of the truth of the frame it holds for (``truth``: seq -> T_world_cam,
+    else the error the loop computed from the frame's own ground truth)."""
+    ok = [r for r in summary.relocalizations if r.ok]
+    assert len(ok) >= min_ok, [(r.trigger, r.status, r.reason) for r in summary.relocalizations]
+    for r in ok:
+        if truth is not None:
+            dt, dr = pose_error(r.T_map_cam, truth[r.seq])
+        else:
+            dt, dr = r.position_error_m, r.rotation_error_deg
+        assert dt < POS_TOL_M and dr < ROT_TOL_DEG, r.to_dict()
+    return ok
+
+
+class OdometrySource(FrameSource):
+    """Frames of a simulated source whose pose is turned into "odometry", optionally corrupted by ``edit(i, T)``;
+    :meth:`truth_planes` gives ground-truth planes from the true pose (kept in ``truth``)."""
+
+    def __init__(self, inner: SimSource, edit=None):
+        super().__init__()
+        self.inner, self.edit, self.name = inner, edit, f"odometry({inner.name})"
+        self.truth: dict[int, np.ndarray] = {}
+
+    @property
+    def intrinsics(self):
+        return self.inner.intrinsics
+
+    def _frames(self):
+        for f in self.inner:
+            self.truth[f.seq] = f.T_world_cam
+            T = f.T_world_cam if self.edit is None else self.edit(f.seq, f.T_world_cam)
+            yield replace(f, T_world_cam=T, pose_source="odometry")
+
+    def truth_planes(self):
+        planes = TruthPlanes(self.inner.scene)
+        return lambda f: planes(replace(f, T_world_cam=self.truth[f.seq]))
+
+
+# -- pieces ------------------------------------------------------------------------------------------------------
+
+
+def test_drop_oldest_queue_keeps_the_newest_and_counts_the_rest():
+    q = DropOldestQueue(4)
+    evicted = [q.put(i) for i in range(10)]
+    assert evicted == [None] * 4 + [0, 1, 2, 3, 4, 5]
+    assert q.dropped == 6 and q.put_count == 10 and q.max_depth == 4 and len(q) == 4
+    assert [q.get(0) for _ in range(4)] == [6, 7, 8, 9]
+    assert q.get(0) is None and not q.finished
+    q.put(10)
+    q.close()
+    assert q.get(0) == 10 and q.get(0) is None and q.finished
+    with pytest.raises(ValueError, match="maxlen"):
+        DropOldestQueue(0)
+
+
+def test_submap_window_moves_every_frame_into_the_newest_camera():
+    src = sim_source(30)
+    frames = list(src)[::10]  # frames 0, 10, 20: the robot moved in between
+    window = SubmapWindow(3)
+    for f in frames:
+        window.push(visible_planes(f, src.scene), f.T_world_cam, f.seq)
+    submap = window.build()
+    sizes = [len(visible_planes(f, src.scene)) for f in frames]
+    assert len(submap) == sum(sizes) and window.seqs == [0, 10, 20]
+    # Every row is an exact scene plane seen from the newest camera (up to orientation).
+    n_true, d_true = planes_in_camera(src.scene, frames[-1].T_world_cam)
+    for n, d in zip(submap.normals, submap.offsets):
+        err = np.minimum(np.abs(n_true @ n - 1) + np.abs(d_true - d), np.abs(n_true @ n + 1) + np.abs(d_true + d))
+        assert err.min() < 1e-9
+    # The samples moved too: they lie on their planes.
+    for i in range(len(submap)):
+        s = submap.samples_of(i).astype(np.float64)
+        assert np.abs(s @ submap.normals[i] + submap.offsets[i]).max() < 1e-4
+    # A frame without odometry restarts the window.
+    window.push(visible_planes(frames[0], src.scene), None, 99)
+    assert window.seqs == [99] and len(window.build()) == sizes[0]
+
+
+def test_explained_fraction_separates_right_and_wrong_poses(living_room_map):
+    map_planes, _ = living_room_map
+    src = sim_source(1)
+    f = next(iter(src))
+    planes = visible_planes(f, src.scene)
+    assert explained_fraction(planes, f.T_world_cam, map_planes, max_angle_rad=0.09, max_offset_m=0.08) == 1.0
+    off = f.T_world_cam.copy()
+    off[:3, 3] += [0.4, -0.3, 0.0]
+    assert explained_fraction(planes, off, map_planes, max_angle_rad=0.09, max_offset_m=0.08) < 0.5
+
+
+# -- the loop ----------------------------------------------------------------------------------------------------
+
+
+def test_loop_relocalizes_on_the_simulator_with_odometry_submaps(living_room_map):
+    map_planes, reloc = living_room_map
+    src = OdometrySource(sim_source(60))
+    params = LiveParams(queue_frames=1000, window_frames=3, reloc_period_s=0.05, search_period_s=0.01)
+    loop = LiveLoop(src, src.truth_planes(), reloc, params=params, map_planes=map_planes)
+    summary = loop.run()
+    assert loop_threads_alive() == []
+    f = summary.frames
+    assert f["captured"] == f["processed"] == f["with_planes"] == 60 and f["dropped"] == 0 and f["bad"] == {}
+    assert summary.odometry["used"] == {"source:odometry": 60}
+    assert summary.relocalizations[0].trigger == "startup"
+    # The pose holds for the newest frame of the submap.
+    ok = assert_poses_within_tolerance(summary, truth=src.truth)
+    assert any(r.submap_frames == 3 for r in ok)
+    d = summary.to_dict()
+    assert d["frames"]["captured"] == 60 and d["relocalizations"][0]["T_map_cam"] is not None
+    assert "extract" in d["latency_ms"] and d["end_to_end_ms"]["capture_to_planes"]["count"] == 60
+
+
+def test_loop_without_odometry_uses_single_frame_submaps(living_room_map):
+    map_planes, reloc = living_room_map
+    src = sim_source(20)  # ground-truth poses are not odometry: "auto" ignores them
+    loop = LiveLoop(src, TruthPlanes(src.scene), reloc, params=LiveParams(queue_frames=100, window_frames=4),
+                    map_planes=map_planes)
+    summary = loop.run()
+    assert summary.odometry["used"] == {"none": 20}
+    assert all(r.submap_frames == 1 for r in summary.relocalizations)
+    assert_poses_within_tolerance(summary)
+
+
+def test_bounded_queue_drops_the_oldest_frames_when_processing_falls_behind(living_room_map):
+    map_planes, reloc = living_room_map
+    src = sim_source(40)
+    truth = TruthPlanes(src.scene)
+    gate = threading.Event()
+    seen = []
+
+    def slow_extract(frame):
+        seen.append(frame.seq)
+        if len(seen) == 1:
+            gate.wait(10.0)  # hold the first frame until the source has delivered everything
+        return truth(frame)
+
+    loop = LiveLoop(src, slow_extract, reloc, params=LiveParams(queue_frames=3), map_planes=map_planes)
+    watcher = threading.Thread(target=lambda: (_wait(lambda: loop.captured == 40), gate.set()))
+    watcher.start()
+    summary = loop.run()
+    watcher.join()
+    f = summary.frames
+    assert f["captured"] == 40 and f["processed"] + f["dropped"] == 40
+    assert f["dropped"] == 40 - 1 - 3 and f["queue_max_depth"] == 3
+    assert seen == [0, 37, 38, 39]  # the oldest went; the newest three were kept in order
+    assert loop_threads_alive() == []
+
+
+def _wait(cond, timeout_s=20.0):
+    import time
+
+    end = time.monotonic() + timeout_s
+    while not cond() and time.monotonic() < end:
+        time.sleep(0.005)
+
+
+def test_a_bad_frame_is_counted_and_skipped(living_room_map):
+    map_planes, reloc = living_room_map
+    src = sim_source(30)
+    truth = TruthPlanes(src.scene)
+
+    def flaky(frame):
+        if frame.seq in (5, 17):
+            raise ValueError(f"corrupt frame {frame.seq}")
+        if frame.seq == 9:
+            return "not a result"
+        return truth(frame)
+
+    loop = LiveLoop(src, flaky, reloc, params=LiveParams(queue_frames=100), map_planes=map_planes)
+    summary = loop.run()
+    f = summary.frames
+    assert f["processed"] == 30 and f["with_planes"] == 27
+    assert f["bad"] == {"extraction_error:ValueError": 2, "extraction_error:AttributeError": 1}
+    assert_poses_within_tolerance(summary)
+
+
+def test_a_failing_relocalizer_is_a_rejection_not_a_crash(living_room_map):
+    map_planes, reloc = living_room_map
+
+    class Broken:
+        def locate(self, submap):
+            raise RuntimeError("index corrupted")
+
+    src = sim_source(10)
+    loop = LiveLoop(src, TruthPlanes(src.scene), Broken(), params=LiveParams(queue_frames=100, search_period_s=0.001),
+                    map_planes=map_planes)
+    summary = loop.run()
+    assert summary.frames["processed"] == 10 and summary.relocalizations
+    assert all(r.status == "error" and "index corrupted" in r.reason for r in summary.relocalizations)
+    assert summary.tracking["final_state"] == "searching" and summary.errors == []
+
+
+def test_odometry_jump_and_disagreement_trigger_relocalization(living_room_map):
+    map_planes, reloc = living_room_map
+
+    def kidnap(seq, T):  # odometry jumps by 2 m at frame 25, then freezes from frame 45 on
+        T = T.copy()
+        if seq >= 25:
+            T[0, 3] += 2.0
+        return T
+
+    src = OdometrySource(sim_source(90), edit=kidnap)
+    params = LiveParams(queue_frames=1000, window_frames=1, reloc_period_s=1000.0, lost_frames=3)
+    loop = LiveLoop(src, src.truth_planes(), reloc, params=params, map_planes=map_planes)
+    summary = loop.run()
+    assert summary.odometry["jumps"] == 1 and summary.tracking["lost"].get("odometry_jump") == 1
+    after = [r for r in summary.relocalizations if "odometry_jump" in r.trigger]
+    assert after and after[0].seq == 25  # relocalization asked at the frame of the jump...
+    assert any(r.ok for r in summary.relocalizations if r.seq >= 25)  # ...and found again (retries while lost)
+    assert_poses_within_tolerance(summary, min_ok=2, truth=src.truth)
+
+    frozen = {}
+
+    def freeze(seq, T):  # odometry stops while the robot keeps moving: the planes stop agreeing with the map
+        if seq >= 20:
+            return frozen.setdefault("T", T)
+        return T
+
+    src = OdometrySource(sim_source(150), edit=freeze)
+    loop = LiveLoop(src, src.truth_planes(), reloc, params=params, map_planes=map_planes)
+    summary = loop.run()
+    assert summary.tracking["lost"].get("tracking_lost", 0) >= 1, summary.tracking
+    lost = [r for r in summary.relocalizations if "tracking_lost" in r.trigger]
+    assert lost and lost[0].seq > 20
+    assert_poses_within_tolerance(summary, min_ok=2, truth=src.truth)
+
+
+def test_requests_are_served_and_stop_joins_every_thread(living_room_map):
+    map_planes, reloc = living_room_map
+    src = sim_source(200, rate=60.0, loop=True)  # paced and endless: only stop() ends it
+    lines: list[str] = []
+    loop = LiveLoop(src, TruthPlanes(src.scene), reloc, params=LiveParams(reloc_period_s=1000.0, status_period_s=0.05),
+                    map_planes=map_planes, on_status=lines.append)
+
+    def driver():
+        _wait(lambda: any(r.ok for r in loop.relocalizations))
+        loop.request_relocalization("manual")
+        _wait(lambda: any("manual" in r.trigger for r in loop.relocalizations) and len(lines) >= 2)
+        loop.stop()
+
+    t = threading.Thread(target=driver)
+    t.start()
+    summary = loop.run()
+    t.join()
+    src.close()
+    assert loop_threads_alive() == []
+    assert summary.source_events["end"] == "stopped"
+    manual = [r for r in summary.relocalizations if "manual" in r.trigger]
+    assert manual and manual[0].ok
+    assert lines and "fps" in lines[0] and "last reloc" in lines[-1]
