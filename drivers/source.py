@@ -33,13 +33,17 @@ import numpy as np
 
 from reloc.camera import DepthFrame, Intrinsics
 
-__all__ = ["FrameSource", "Pacer", "parse_rate", "check_frame_contract", "open_source", "SOURCE_SPECS"]
+__all__ = ["FrameSource", "SourceError", "Pacer", "parse_rate", "check_frame_contract", "open_source", "SOURCE_SPECS"]
 
 # Looked up when a Pacer is made, so tests can replace them.
 _monotonic = time.monotonic
 _sleep = time.sleep
 
-SOURCE_SPECS = "sim[:SCENE], oak[:DEVICE_ID], replay:PATH (a sequence folder), rosbag:PATH"
+SOURCE_SPECS = "sim[:SCENE], oak[:DEVICE_ID], replay:PATH (a sequence folder)"
+
+
+class SourceError(RuntimeError):
+    """A frame source failed in a way a person must act on (no device, device lost); the message says what."""
 
 
 class FrameSource(ABC):
@@ -178,7 +182,6 @@ def open_source(spec: str, **kwargs) -> FrameSource:
     - ``oak`` or ``oak:DEVICE_ID``: :class:`drivers.oak.OakSource` (preset, width, height, align_to, imu, ...).
     - ``replay:PATH``: :class:`drivers.replay.ReplaySource` (rate, speed, loop, max_dt_s, ...). A bare existing
       path is taken as ``replay:PATH``.
-    - ``rosbag:PATH``: :class:`drivers.rosbag.RosbagSource` (depth_topic, info_topic, odom_topic, rate).
     """
     import os
 
@@ -200,12 +203,6 @@ def open_source(spec: str, **kwargs) -> FrameSource:
             if not arg:
                 raise ValueError(f"spec: 'replay' needs a path, as in replay:PATH, got {spec!r}")
             return ReplaySource(arg, **kwargs)
-        if kind == "rosbag":
-            from drivers.rosbag import RosbagSource
-
-            if not arg:
-                raise ValueError(f"spec: 'rosbag' needs a path, as in rosbag:PATH, got {spec!r}")
-            return RosbagSource(arg, **kwargs)
     except TypeError as exc:
         if "keyword argument" not in str(exc):
             raise

@@ -14,7 +14,9 @@ import click
 # name -> "module:attribute" of a click command or group.
 COMMANDS: dict[str, str] = {
     "config": "reloc.commands.config_cmd:config",
+    "devices": "drivers.commands:devices_cmd",
     "firmware-sim": "firmware_bridge.cli:firmware_sim",
+    "record": "drivers.commands:record_cmd",
     "sim": "sim.cli:sim",
 }
 

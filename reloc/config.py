@@ -217,18 +217,6 @@ class LiveConfig(_Section):
     lost_jump_m: float = Field(0.5, gt=0, description="Odometry jumping more than this between frames means lost.")
     status_period_s: float = Field(1.0, gt=0, description="How often the status line is printed.")
     realtime: bool = Field(True, description="Simulated and replayed sources run at their frame rate.")
-    lost_jump_deg: float = Field(30.0, gt=0, description="...or turning more than this between frames.")
-    lost_min_explained: float = Field(
-        0.3, ge=0, le=1,
-        description="Tracking check: planes of a frame, moved by the last verified pose and odometry, must match the "
-        "map for at least this fraction of their area...",
-    )
-    lost_frames: int = Field(5, ge=1, description="...else after this many frames in a row tracking counts as lost.")
-    search_period_s: float = Field(0.25, gt=0, description="While lost, relocalize at most this often.")
-    stall_s: float = Field(1.0, gt=0, description="No frame from the source for this long is reported as a stall.")
-    reconnect_backoff_s: FloatSeq = Field(
-        (0.1, 0.2, 0.5, 1.0, 2.0), description="Waits between reconnect attempts of a lost camera (the last repeats)."
-    )
 
 
 class SerialConfig(_Section):
