@@ -217,6 +217,18 @@ class LiveConfig(_Section):
     lost_jump_m: float = Field(0.5, gt=0, description="Odometry jumping more than this between frames means lost.")
     status_period_s: float = Field(1.0, gt=0, description="How often the status line is printed.")
     realtime: bool = Field(True, description="Simulated and replayed sources run at their frame rate.")
+    lost_jump_deg: float = Field(30.0, gt=0, description="...or turning more than this between frames.")
+    lost_min_explained: float = Field(
+        0.3, ge=0, le=1,
+        description="Tracking check: planes of a frame, moved by the last verified pose and odometry, must match the "
+        "map for at least this fraction of their area...",
+    )
+    lost_frames: int = Field(5, ge=1, description="...else after this many frames in a row tracking counts as lost.")
+    search_period_s: float = Field(0.25, gt=0, description="While lost, relocalize at most this often.")
+    stall_s: float = Field(1.0, gt=0, description="No frame from the source for this long is reported as a stall.")
+    reconnect_backoff_s: FloatSeq = Field(
+        (0.1, 0.2, 0.5, 1.0, 2.0), description="Waits between reconnect attempts of a lost camera (the last repeats)."
+    )
 
 
 class SerialConfig(_Section):
@@ -267,10 +279,34 @@ class OakConfig(_Section):
     search_timeout_s: float = Field(2.0, gt=0, description="How long to look for a device before giving up.")
 
 
+class OakConfig(_Section):
+    """OAK stereo camera through depthai 3 (`reloc record --camera oak`, `reloc run --camera oak`)."""
+
+    preset: Literal["DEFAULT", "ROBOTICS", "ACCURACY", "DENSITY", "FAST_ACCURACY", "FAST_DENSITY", "HIGH_DETAIL",
+                    "FACE"] = Field("DEFAULT", description="StereoDepth preset mode.")
+    width: int = Field(640, ge=64, le=4096, description="Depth output width in pixels (mono cameras run at it).")
+    height: int = Field(400, ge=64, le=4096, description="Depth output height in pixels.")
+    fps: float = Field(30.0, gt=0, le=120, description="Camera frame rate.")
+    subpixel: bool = Field(True, description="Subpixel disparity (finer depth steps far away).")
+    lr_check: bool = Field(True, description="Left-right consistency check (removes occlusion errors).")
+    extended_disparity: bool = Field(False, description="Extended disparity range (closer minimum depth).")
+    align_to: Literal["left", "right", "rgb"] = Field("left", description="Camera whose view the depth is aligned to.")
+    imu: bool = Field(True, description="Gravity from the IMU accelerometer when the device has one.")
+    imu_rate_hz: int = Field(100, ge=1, le=500, description="Accelerometer report rate.")
+    gravity_tau_s: float = Field(0.5, ge=0, description="Low-pass time constant of the accelerometer for gravity.")
+    reconnect: bool = Field(True, description="Reconnect after an unplug or X_LINK error instead of stopping.")
+    reconnect_backoff_s: FloatSeq = Field(
+        (0.5, 1.0, 2.0, 5.0), description="Waits between reconnect attempts (the last repeats)."
+    )
+    frame_timeout_s: float = Field(3.0, gt=0, description="No depth frame for this long counts as a disconnect.")
+    search_timeout_s: float = Field(2.0, gt=0, description="How long to look for a device before giving up.")
+
+
 class Config(_Section):
     """The whole configuration; every section has defaults, so an empty file is valid."""
 
     camera: CameraConfig = CameraConfig()
+    oak: OakConfig = OakConfig()
     oak: OakConfig = OakConfig()
     extraction: ExtractionConfig = ExtractionConfig()
     merging: MergingConfig = MergingConfig()
