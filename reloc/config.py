@@ -279,34 +279,10 @@ class OakConfig(_Section):
     search_timeout_s: float = Field(2.0, gt=0, description="How long to look for a device before giving up.")
 
 
-class OakConfig(_Section):
-    """OAK stereo camera through depthai 3 (`reloc record --camera oak`, `reloc run --camera oak`)."""
-
-    preset: Literal["DEFAULT", "ROBOTICS", "ACCURACY", "DENSITY", "FAST_ACCURACY", "FAST_DENSITY", "HIGH_DETAIL",
-                    "FACE"] = Field("DEFAULT", description="StereoDepth preset mode.")
-    width: int = Field(640, ge=64, le=4096, description="Depth output width in pixels (mono cameras run at it).")
-    height: int = Field(400, ge=64, le=4096, description="Depth output height in pixels.")
-    fps: float = Field(30.0, gt=0, le=120, description="Camera frame rate.")
-    subpixel: bool = Field(True, description="Subpixel disparity (finer depth steps far away).")
-    lr_check: bool = Field(True, description="Left-right consistency check (removes occlusion errors).")
-    extended_disparity: bool = Field(False, description="Extended disparity range (closer minimum depth).")
-    align_to: Literal["left", "right", "rgb"] = Field("left", description="Camera whose view the depth is aligned to.")
-    imu: bool = Field(True, description="Gravity from the IMU accelerometer when the device has one.")
-    imu_rate_hz: int = Field(100, ge=1, le=500, description="Accelerometer report rate.")
-    gravity_tau_s: float = Field(0.5, ge=0, description="Low-pass time constant of the accelerometer for gravity.")
-    reconnect: bool = Field(True, description="Reconnect after an unplug or X_LINK error instead of stopping.")
-    reconnect_backoff_s: FloatSeq = Field(
-        (0.5, 1.0, 2.0, 5.0), description="Waits between reconnect attempts (the last repeats)."
-    )
-    frame_timeout_s: float = Field(3.0, gt=0, description="No depth frame for this long counts as a disconnect.")
-    search_timeout_s: float = Field(2.0, gt=0, description="How long to look for a device before giving up.")
-
-
 class Config(_Section):
     """The whole configuration; every section has defaults, so an empty file is valid."""
 
     camera: CameraConfig = CameraConfig()
-    oak: OakConfig = OakConfig()
     oak: OakConfig = OakConfig()
     extraction: ExtractionConfig = ExtractionConfig()
     merging: MergingConfig = MergingConfig()
