@@ -26,7 +26,7 @@ def _source_options(pairs: tuple[str, ...]) -> dict:
 @click.option("--frames", "n_frames", type=click.IntRange(min=1), default=None, help="Stop after N frames.")
 @click.option("--duration", "duration_s", type=click.FloatRange(min=0, min_open=True), default=None,
               help="Stop after S seconds.")
-@click.option("--rate", default=None, help="Pacing of sim/replay sources: recorded, fast (default) or a rate in Hz.")
+@click.option("--rate", default=None, help="Pacing of sim/replay/rosbag sources: recorded, fast (default) or a rate in Hz.")
 @click.option("--config", "config_file", type=click.Path(dir_okay=False, exists=True), default=None,
               help="Config YAML (its oak section sets up OAK cameras).")
 @click.option("-o", "--option", "options", multiple=True, metavar="KEY=VALUE",
@@ -53,10 +53,10 @@ def _record(spec, out_dir, n_frames, duration_s, rate, config_file, options, ove
 
     kwargs = _source_options(options)
     kind = spec.partition(":")[0]
-    if kind in ("sim", "replay"):
+    if kind in ("sim", "replay", "rosbag"):
         kwargs.setdefault("rate", rate or "fast")
     elif rate is not None:
-        raise click.BadParameter("--rate applies to sim and replay sources only", param_hint="--rate")
+        raise click.BadParameter("--rate applies to sim, replay and rosbag sources only", param_hint="--rate")
     if kind == "sim" and n_frames is not None:
         kwargs.setdefault("n_frames", n_frames)
     if kind == "oak":

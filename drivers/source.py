@@ -39,7 +39,7 @@ __all__ = ["FrameSource", "SourceError", "Pacer", "parse_rate", "check_frame_con
 _monotonic = time.monotonic
 _sleep = time.sleep
 
-SOURCE_SPECS = "sim[:SCENE], oak[:DEVICE_ID], replay:PATH (a sequence folder)"
+SOURCE_SPECS = "sim[:SCENE], oak[:DEVICE_ID], replay:PATH (a sequence folder), rosbag:PATH"
 
 
 class SourceError(RuntimeError):
@@ -182,6 +182,7 @@ def open_source(spec: str, **kwargs) -> FrameSource:
     - ``oak`` or ``oak:DEVICE_ID``: :class:`drivers.oak.OakSource` (preset, width, height, align_to, imu, ...).
     - ``replay:PATH``: :class:`drivers.replay.ReplaySource` (rate, speed, loop, max_dt_s, ...). A bare existing
       path is taken as ``replay:PATH``.
+    - ``rosbag:PATH``: :class:`drivers.rosbag.RosbagSource` (depth_topic, info_topic, odom_topic, T_base_cam, rate).
     """
     import os
 
@@ -203,6 +204,12 @@ def open_source(spec: str, **kwargs) -> FrameSource:
             if not arg:
                 raise ValueError(f"spec: 'replay' needs a path, as in replay:PATH, got {spec!r}")
             return ReplaySource(arg, **kwargs)
+        if kind == "rosbag":
+            from drivers.rosbag import RosbagSource
+
+            if not arg:
+                raise ValueError(f"spec: 'rosbag' needs a path, as in rosbag:PATH, got {spec!r}")
+            return RosbagSource(arg, **kwargs)
     except TypeError as exc:
         if "keyword argument" not in str(exc):
             raise
