@@ -17,6 +17,7 @@ COMMANDS: dict[str, str] = {
     "devices": "drivers.commands:devices_cmd",
     "firmware-sim": "firmware_bridge.cli:firmware_sim",
     "record": "drivers.commands:record_cmd",
+    "run": "reloc.live.cli:run",
     "sim": "sim.cli:sim",
 }
 
