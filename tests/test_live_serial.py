@@ -153,3 +153,48 @@ def test_reloc_run_command_with_the_simulated_firmware_on_a_pty(tmp_path):
     assert s["bridge"]["odometry"] > 0 and s["bridge"]["poses_sent"] >= 1 and s["bridge"]["frames_bad"] == 0
     assert mcu_stats["poses_received"] >= 1 and mcu_stats["decoder"]["frames_bad"] == 0
     assert "relocalizations:" in result.output
+
+
+class SilentCamera(FrameSource):
+    """A camera that never delivers a frame (blocked in its read until closed)."""
+
+    name = "silent"
+
+    @property
+    def intrinsics(self):
+        return resolve_intrinsics("oak-d", 160, 100)
+
+    def _frames(self):
+        while not self.closed:
+            time.sleep(0.02)
+        return
+        yield
+
+
+def test_a_request_without_camera_frames_is_answered_not_ready_and_a_blocked_source_is_closed(tmp_path, living_room):
+    _, map_planes, reloc = living_room
+    link = tmp_path / "ttyMCU"
+    mcu = McuSimulator(PtyEndpoint(link), path=PATH, reloc_period_s=0.0, seed=3)
+    bridge = HostBridge(str(link), heartbeat_period_s=0.1, reconnect_backoff_s=(0.02,))
+    camera = SilentCamera()
+    loop = LiveLoop(camera, lambda f: None, reloc, params=LiveParams(T_base_cam=T_BASE_CAM), map_planes=map_planes,
+                    bridge=bridge)
+    loop.capture_join_s = 0.2
+
+    def firmware_side():
+        try:
+            assert wait_until(lambda: mcu.counters["host_heartbeats"] > 0, 10.0)
+            mcu.request_relocalization()
+            wait_until(lambda: mcu.counters["poses_received"] > 0, 10.0)
+        finally:
+            loop.stop()
+
+    with mcu, bridge:
+        driver = threading.Thread(target=firmware_side)
+        driver.start()
+        summary = loop.run(duration_s=30.0)
+        driver.join()
+    assert camera.closed  # the loop closed the blocked source to end its capture thread
+    assert [t.name for t in threading.enumerate() if t.name in THREAD_NAMES] == []
+    assert [c.status for c in mcu.pose_checks] == [PoseStatus.NOT_READY]
+    assert summary.frames["captured"] == 0 and summary.relocalizations == []

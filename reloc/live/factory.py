@@ -33,6 +33,10 @@ def open_camera(spec: str, cfg, *, rate: "str | float | None" = None, n_frames: 
     if kind == "sim":
         kwargs.setdefault("n_frames", int(n_frames) if n_frames else 900)
         kwargs.setdefault("loop", n_frames is None)
+    if kind == "oak":
+        from drivers.oak import oak_kwargs_from_config
+
+        kwargs = {**oak_kwargs_from_config(cfg), **kwargs}
     return open_source(spec, **kwargs)
 
 

@@ -134,6 +134,7 @@ class _Job:
     stamp_ns: int
     t_cap_ns: int
     T_odom_cam: np.ndarray | None
+    odometry_kind: str
     T_truth: np.ndarray | None
     request_ids: tuple = ()
 
@@ -252,6 +253,7 @@ class LiveLoop:
         self._workers_stop = threading.Event()
         self._lock = threading.Lock()
         self._threads: list[threading.Thread] = []
+        self.capture_join_s = 5.0  # how long a source blocked in a read may hold up shutdown before it is closed
         self._requests: list[tuple[str, int]] = []  # (trigger, request id or 0) waiting for the next frame
 
         # Counters (each written by one thread; read under the lock for the status line and summary).
@@ -264,7 +266,9 @@ class LiveLoop:
         self.reconnects = 0
         self.reconnect_failures = 0
         self.source_end = "running"
-        self.bad: Counter[str] = Counter()
+        self.bad: Counter[str] = Counter()  # written by the processing thread only
+        self.capture_bad: Counter[str] = Counter()  # written by the capture thread only
+        self._last_frame_s: float | None = None
         self.odometry_used: Counter[str] = Counter()
         self.odometry_jumps = 0
         self.odometry_resets = 0
@@ -275,7 +279,8 @@ class LiveLoop:
         self.state = "starting"  # starting | localized | searching
         self.last_error = ""
 
-        self._verified: tuple[np.ndarray, np.ndarray | None, int] | None = None  # (T_map_cam, T_odom_cam, seq)
+        # The last accepted pose: (T_map_cam, T_odom_cam at that frame, seq, odometry kind).
+        self._verified: tuple[np.ndarray, np.ndarray | None, int, str] | None = None
         self._prev_odom: tuple[str, np.ndarray, int] | None = None  # (kind, T_odom_cam, seq)
         self._odom_reset_pending = False
         self._bad_streak = 0
@@ -381,7 +386,7 @@ class LiveLoop:
                 t_cap = self.clock_ns()
                 prof.record("capture.wait", t0, time.perf_counter_ns() - t0)
                 if not isinstance(frame, DepthFrame):
-                    self.bad[f"not_a_frame:{type(frame).__name__}"] += 1
+                    self.capture_bad[f"not_a_frame:{type(frame).__name__}"] += 1
                     continue
                 if last_seq is not None and frame.seq > last_seq + 1:
                     self.source_gaps += frame.seq - last_seq - 1
@@ -443,6 +448,7 @@ class LiveLoop:
     def _process(self, frame: DepthFrame, t_cap: int) -> None:
         prof = self.profiler
         self.processed += 1
+        self._last_frame_s = time.monotonic()
         depth = frame.depth_m
         if not np.any(depth > 0):  # NaN compares False: all-NaN and all-zero frames have no measurement
             self.bad["no_valid_depth"] += 1
@@ -462,12 +468,17 @@ class LiveLoop:
         timings = {k: v for k, v in getattr(result, "timings_ms", {}).items() if k != "total"}
         prof.add_timings_ms(timings, prefix="extract.", end_ns=t1)
         self.planes_ok += 1
-        prof.record("latency.capture_to_planes", t1 - (self.clock_ns() - t_cap), self.clock_ns() - t_cap)
+        cap_to_planes = self.clock_ns() - t_cap
+        prof.record("latency.capture_to_planes", t1 - cap_to_planes, cap_to_planes)
 
         with prof.stage("submap"):
             T_odom_cam, odo_kind = self._odometry_pose(frame, t_cap)
             self.odometry_used[odo_kind] += 1
             lost_trigger = None
+            if self._prev_odom is not None and self._prev_odom[0] != odo_kind:
+                # Poses of different odometry sources (bridge, camera, none) cannot be chained in one submap.
+                self._window.reset()
+                self._prev_odom = None
             if self._odom_reset_pending:
                 self._odom_reset_pending = False
                 self._prev_odom = None
@@ -489,7 +500,7 @@ class LiveLoop:
         T_pred = None
         with prof.stage("track"):
             verified = self._verified
-            if verified is not None and T_odom_cam is not None and verified[1] is not None:
+            if verified is not None and T_odom_cam is not None and verified[1] is not None and verified[3] == odo_kind:
                 T_pred = predict_T_map_cam(verified[0], verified[1], T_odom_cam)
                 if self.map_planes is not None:
                     frac = explained_fraction(planes, T_pred, self.map_planes,
@@ -516,7 +527,7 @@ class LiveLoop:
             truth = frame.T_world_cam if frame.pose_source in _TRUTH_SOURCES else None
             self._last_attempt_s = time.monotonic()
             self._mailbox.submit(_Job(trigger, submap, len(self._window), frame.seq, frame.stamp_ns, t_cap,
-                                      T_odom_cam, truth, request_ids))
+                                      T_odom_cam, odo_kind, truth, request_ids))
 
     def _trigger(self, lost_trigger: str | None) -> tuple[str | None, tuple]:
         with self._lock:
@@ -579,7 +590,7 @@ class LiveLoop:
             self.relocalizations.append(rec)
         now = time.monotonic()
         if ok:
-            self._verified = (T, job.T_odom_cam, job.seq)
+            self._verified = (T, job.T_odom_cam, job.seq, job.odometry_kind)
             self._bad_streak = 0
             self._last_ok_s = now
             self.state = "localized"
@@ -616,7 +627,12 @@ class LiveLoop:
             while ev is not None:
                 if isinstance(ev, RelocRequestEvent):
                     self._event(f"relocalization requested by the MCU (id {ev.request_id}, reason {ev.reason})")
-                    self.request_relocalization("request", ev.request_id)
+                    last = self._last_frame_s
+                    if last is None or time.monotonic() - last > max(1.0, self.params.stall_s):
+                        # No frames are flowing (camera starting, lost or stalled): say so now, do not keep it waiting.
+                        self._post(("reloc", None, self.clock_ns(), 0.0, ev.request_id, "not_ready: no camera frames"))
+                    else:
+                        self.request_relocalization("request", ev.request_id)
                 elif isinstance(ev, BridgeEvent):
                     if ev.kind in ("odometry_reset", "mcu_reboot"):
                         self.odometry_resets += 1
@@ -695,7 +711,7 @@ class LiveLoop:
         self._workers_stop.set()
         for t in self._threads:
             if t.name == "capture":
-                t.join(5.0)
+                t.join(self.capture_join_s)
                 if t.is_alive():
                     # A source blocked in a read: closing it is the way to wake it.
                     self._event("capture thread blocked; closing the source")
@@ -742,7 +758,8 @@ class LiveLoop:
         info = self.source.info() if hasattr(self.source, "info") else {"name": str(self.source)}
         frames = {
             "captured": self.captured, "processed": self.processed, "with_planes": self.planes_ok,
-            "dropped": self._queue.dropped, "source_gaps": self.source_gaps, "bad": dict(self.bad),
+            "dropped": self._queue.dropped, "source_gaps": self.source_gaps,
+            "bad": dict(self.bad + self.capture_bad),
             "queue_capacity": self._queue.maxlen, "queue_max_depth": self._queue.max_depth,
             "fps": round(self.processed / duration_s, 3) if duration_s > 0 else None,
         }
@@ -771,6 +788,8 @@ class LiveLoop:
 
 def _reject_status(reason: str, PoseStatus) -> int:
     r = reason.lower()
+    if r.startswith("not_ready"):
+        return PoseStatus.NOT_READY
     if "ambig" in r:
         return PoseStatus.AMBIGUOUS
     if "few" in r or "planes" in r:
