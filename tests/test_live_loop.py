@@ -291,3 +291,36 @@ def test_requests_are_served_and_stop_joins_every_thread(living_room_map):
     manual = [r for r in summary.relocalizations if "manual" in r.trigger]
     assert manual and manual[0].ok
     assert lines and "fps" in lines[0] and "last reloc" in lines[-1]
+
+
+def test_reloc_run_stops_cleanly_on_sigterm(tmp_path):
+    """The command as a process: SIGTERM mid-run stops the loop, joins its threads, writes the summary, exits 0."""
+    import json
+    import os
+    import signal
+    import subprocess
+    import sys
+
+    out = tmp_path / "summary.json"
+    cfg = tmp_path / "c.yaml"
+    cfg.write_text("live:\n  status_period_s: 0.1\n")
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "reloc.cli", "run", "--camera", "sim", "--map", "sim:living_room", "--planes", "truth",
+         "--duration", "120", "--summary", str(out), "--config", str(cfg)],
+        stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=tmp_path,
+        env={**os.environ, "PYTHONUNBUFFERED": "1"},
+    )
+    try:
+        for line in proc.stderr:  # the first status line: the loop runs and the handlers are in place
+            if " fps | " in line:
+                break
+        proc.send_signal(signal.SIGTERM)
+        stdout, stderr = proc.communicate(timeout=60)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == 0, stderr
+    s = json.loads(out.read_text())
+    assert s["source_events"]["end"] == "stopped" and s["errors"] == []
+    assert s["frames"]["captured"] >= s["frames"]["processed"] > 0
+    assert "relocalizations:" in stdout
