@@ -151,7 +151,12 @@ class MatchingConfig(_Section):
         6.0, gt=0, description="Angles inside a map triplet must equal those of the submap triplet within this."
     )
     max_sphere_gap_m: float = Field(
-        1.0, ge=0, description="Map planes of a triplet: their spheres (centroid, radius) at most this far apart."
+        3.0, ge=0,
+        description="Map planes of a triplet: their spheres (centroid, radius) at most this far apart (the index keeps "
+        "such pairs). Per query the bound is tighter: what the submap saw of the two planes, plus gap_tolerance_m.",
+    )
+    gap_tolerance_m: float = Field(
+        0.2, ge=0, description="Added to the submap's own distance between two planes to bound the map planes' gap."
     )
     min_area_ratio: float = Field(
         0.5, gt=0, le=1, description="Map plane area must be at least this times the submap plane area."

@@ -11,8 +11,14 @@ import pytest
 from reloc.evaluation.synthetic import furnished_room, look_at, scene_planes, view_planes
 from reloc.matching import MatchingParams, Relocalizer, transform_from_plane_pairs
 from reloc.matching import _kernels as K
-from reloc.matching.index import build_index
-from reloc.matching.selection import candidate_triplets, order_submap_planes, submap_triplets
+from reloc.matching.index import build_index, horizontal_facing
+from reloc.matching.selection import (
+    candidate_triplets,
+    gap_bounds,
+    order_submap_planes,
+    sample_distances,
+    submap_triplets,
+)
 from reloc.matching.transform import rotation_from_normal_pairs
 from reloc.planes import transform_planes
 from reloc.transforms import invert, pose_error, rotation_from_axis_angle, transform_from_rotation_translation
@@ -141,10 +147,11 @@ def test_index_gives_the_brute_force_candidates(structural):
     total = 0
     for T in views(rng, 4):
         sub = view_planes(rects, T, point_noise_m=0.003, normal_noise_deg=0.5, rng=rng)
-        ground = np.asarray(sub.normals @ -sub.gravity > math.cos(params.ground_tolerance_rad))
-        tri, use_ground = submap_triplets(sub.normals, ground, np.arange(len(sub)), 0, params)
-        fast, gen_fast, _ = candidate_triplets(index, sub.normals, sub.areas, tri, use_ground, params)
-        slow, gen_slow, _ = candidate_triplets(index, sub.normals, sub.areas, tri, use_ground, params,
+        facing = horizontal_facing(sub, params.ground_tolerance_rad)
+        tri, face0, use_ground = submap_triplets(sub.normals, facing, np.arange(len(sub)), 0, params)
+        gaps = gap_bounds(tri, sample_distances(sub.sample_ptr, sub.sample_points.astype(float)), params)
+        fast, gen_fast, _ = candidate_triplets(index, sub.normals, sub.areas, tri, face0, gaps, use_ground, params)
+        slow, gen_slow, _ = candidate_triplets(index, sub.normals, sub.areas, tri, face0, gaps, use_ground, params,
                                                brute_force=True)
         assert {tuple(r) for r in fast} == {tuple(r) for r in slow}
         assert len(fast) == len(slow)

@@ -321,12 +321,17 @@ def _lower_bound(arr, lo, hi, value):
 
 @njit
 def _triplet_ok(j0, j1, j2, i0, i1, i2, sub_normals, sub_areas, map_normals, map_centroids, map_radii, map_areas,
-                map_is_ground, t01, t02, t12, det_s, tol, require_ground, check_gap, max_gap, check_area,
+                map_facing, face0, t01, t02, t12, det_s, tol, require_ground, check_gap, g01, g02, g12, check_area,
                 min_area_ratio, min_triple):
-    """Every per-triplet test of the selection, shared by the indexed join and the brute force."""
+    """Every per-triplet test of the selection, shared by the indexed join and the brute force.
+
+    ``face0``: +1 / -1 when the submap plane j0 is a horizontal anchor facing up (floor, table) / down (ceiling);
+    with ``require_ground`` the map plane i0 must face the same way. ``g01, g02, g12``: upper bounds of the sphere
+    gaps between the map planes (what the submap shows of the same planes is at most that far apart).
+    """
     if i0 == i1 or i0 == i2 or i1 == i2:
         return False
-    if require_ground and not map_is_ground[i0]:
+    if require_ground and map_facing[i0] != face0:
         return False
     if check_area:
         if map_areas[i0] < min_area_ratio * sub_areas[j0]:
@@ -342,11 +347,11 @@ def _triplet_ok(j0, j1, j2, i0, i1, i2, sub_normals, sub_areas, map_normals, map
     if abs(_angle(map_normals[i0], map_normals[i2]) - t02) > tol:
         return False
     if check_gap:
-        if sphere_gap(map_centroids[i1], map_radii[i1], map_centroids[i2], map_radii[i2]) > max_gap:
+        if sphere_gap(map_centroids[i1], map_radii[i1], map_centroids[i2], map_radii[i2]) > g12:
             return False
-        if sphere_gap(map_centroids[i0], map_radii[i0], map_centroids[i1], map_radii[i1]) > max_gap:
+        if sphere_gap(map_centroids[i0], map_radii[i0], map_centroids[i1], map_radii[i1]) > g01:
             return False
-        if sphere_gap(map_centroids[i0], map_radii[i0], map_centroids[i2], map_radii[i2]) > max_gap:
+        if sphere_gap(map_centroids[i0], map_radii[i0], map_centroids[i2], map_radii[i2]) > g02:
             return False
     det_m = _triple(map_normals[i0], map_normals[i1], map_normals[i2])
     if abs(det_m) < min_triple or det_m * det_s <= 0.0:
@@ -355,12 +360,13 @@ def _triplet_ok(j0, j1, j2, i0, i1, i2, sub_normals, sub_areas, map_normals, map
 
 
 @njit
-def join_candidates(sub_trip, sub_normals, sub_areas, map_normals, map_centroids, map_radii, map_areas, map_is_ground,
-                    pair_first, pair_second, pair_angle, adj_ptr, adj_ids, adj_angle, tol, require_ground, check_gap,
-                    max_gap, check_area, min_area_ratio, min_triple, out):
+def join_candidates(sub_trip, sub_face0, sub_gaps, sub_normals, sub_areas, map_normals, map_centroids, map_radii,
+                    map_areas, map_facing, pair_first, pair_second, pair_angle, adj_ptr, adj_ids, adj_angle, tol,
+                    require_ground, check_gap, check_area, min_area_ratio, min_triple, out):
     """Map triplets agreeing with each submap triplet, found through the pair index.
 
-    ``sub_trip`` (T, 3) int32 ``(j0, j1, j2)``; the pairs ``(pair_first, pair_second)`` are sorted by
+    ``sub_trip`` (T, 3) int32 ``(j0, j1, j2)`` with ``sub_face0`` (T,) int8 and ``sub_gaps`` (T, 3) the gap bounds
+    ``(g01, g02, g12)`` of each; the pairs ``(pair_first, pair_second)`` are sorted by
     ``pair_angle``; ``adj_*`` is the same relation per plane (CSR, each row sorted by angle). For the pair
     ``(j1, j2)`` the map pairs ``(i1, i2)`` come from a binary search on the pair angle, and ``i0`` from the rows of
     ``i1`` with the angle of ``(j0, j1)``; every candidate then passes :func:`_triplet_ok`.
@@ -378,6 +384,10 @@ def join_candidates(sub_trip, sub_normals, sub_areas, map_normals, map_centroids
         t02 = _angle(sub_normals[j0], sub_normals[j2])
         t12 = _angle(sub_normals[j1], sub_normals[j2])
         det_s = _triple(sub_normals[j0], sub_normals[j1], sub_normals[j2])
+        face0 = sub_face0[t]
+        g01 = sub_gaps[t, 0]
+        g02 = sub_gaps[t, 1]
+        g12 = sub_gaps[t, 2]
         p_lo = _lower_bound(pair_angle, 0, pair_angle.shape[0], t12 - tol)
         for p in range(p_lo, pair_angle.shape[0]):
             if pair_angle[p] > t12 + tol:
@@ -394,8 +404,8 @@ def join_candidates(sub_trip, sub_normals, sub_areas, map_normals, map_centroids
                 i0 = adj_ids[q]
                 generated += 1
                 if _triplet_ok(j0, j1, j2, i0, i1, i2, sub_normals, sub_areas, map_normals, map_centroids, map_radii,
-                               map_areas, map_is_ground, t01, t02, t12, det_s, tol, require_ground, check_gap,
-                               max_gap, check_area, min_area_ratio, min_triple):
+                               map_areas, map_facing, face0, t01, t02, t12, det_s, tol, require_ground, check_gap,
+                               g01, g02, g12, check_area, min_area_ratio, min_triple):
                     if count < cap:
                         out[count, 0] = j0
                         out[count, 1] = j1
@@ -408,9 +418,9 @@ def join_candidates(sub_trip, sub_normals, sub_areas, map_normals, map_centroids
 
 
 @njit
-def brute_force_candidates(sub_trip, sub_normals, sub_areas, map_normals, map_centroids, map_radii, map_areas,
-                           map_is_ground, tol, require_ground, check_gap, max_gap, check_area, min_area_ratio,
-                           min_triple, out):
+def brute_force_candidates(sub_trip, sub_face0, sub_gaps, sub_normals, sub_areas, map_normals, map_centroids,
+                           map_radii, map_areas, map_facing, tol, require_ground, check_gap, check_area,
+                           min_area_ratio, min_triple, out):
     """The same candidates as :func:`join_candidates` by enumerating every ordered map triplet (O(N^3) per query).
 
     The baseline of the latency benchmark and the reference of the index in the tests.
@@ -428,13 +438,17 @@ def brute_force_candidates(sub_trip, sub_normals, sub_areas, map_normals, map_ce
         t02 = _angle(sub_normals[j0], sub_normals[j2])
         t12 = _angle(sub_normals[j1], sub_normals[j2])
         det_s = _triple(sub_normals[j0], sub_normals[j1], sub_normals[j2])
+        face0 = sub_face0[t]
+        g01 = sub_gaps[t, 0]
+        g02 = sub_gaps[t, 1]
+        g12 = sub_gaps[t, 2]
         for i0 in range(n):
             for i1 in range(n):
                 for i2 in range(n):
                     generated += 1
                     if _triplet_ok(j0, j1, j2, i0, i1, i2, sub_normals, sub_areas, map_normals, map_centroids,
-                                   map_radii, map_areas, map_is_ground, t01, t02, t12, det_s, tol, require_ground,
-                                   check_gap, max_gap, check_area, min_area_ratio, min_triple):
+                                   map_radii, map_areas, map_facing, face0, t01, t02, t12, det_s, tol, require_ground,
+                                   check_gap, g01, g02, g12, check_area, min_area_ratio, min_triple):
                         if count < cap:
                             out[count, 0] = j0
                             out[count, 1] = j1
@@ -810,7 +824,7 @@ def _warmup() -> None:
     centroids = -normals * offsets[:, None]
     radii = np.ones(3)
     areas = np.ones(3)
-    is_ground = np.array([False, False, True])
+    facing = np.array([0, 0, 1], np.int8)
     first, second, ang = build_pairs(normals, centroids, radii, 0.1, 3.0, True, 10.0)
     order = np.argsort(ang, kind="stable")
     first, second, ang = first[order], second[order], ang[order]
@@ -821,10 +835,12 @@ def _warmup() -> None:
     adj_ids = second.astype(np.int32)
     adj_ang = ang.copy()
     trip = np.array([[2, 0, 1]], np.int32)
+    face0 = np.ones(1, np.int8)
+    gaps = np.full((1, 3), 10.0)
     out = np.empty((16, 6), np.int32)
-    join_candidates(trip, normals, areas, normals, centroids, radii, areas, is_ground, first, second, ang, adj_ptr,
-                    adj_ids, adj_ang, 0.1, True, True, 10.0, True, 0.5, 0.2, out)
-    brute_force_candidates(trip, normals, areas, normals, centroids, radii, areas, is_ground, 0.1, True, True, 10.0,
+    join_candidates(trip, face0, gaps, normals, areas, normals, centroids, radii, areas, facing, first, second, ang,
+                    adj_ptr, adj_ids, adj_ang, 0.1, True, True, True, 0.5, 0.2, out)
+    brute_force_candidates(trip, face0, gaps, normals, areas, normals, centroids, radii, areas, facing, 0.1, True, True,
                            True, 0.5, 0.2, out)
     cand = np.array([[0, 1, 2, 0, 1, 2]], np.int32)
     Rs = np.empty((1, 3, 3))

@@ -6,7 +6,8 @@
   by angle, so the pairs agreeing with a submap pair are one binary search away; the same relation is also kept per
   plane (CSR rows sorted by angle) to find the third plane. With the sphere constraint the number of pairs grows
   linearly with the map (each plane has a bounded number of neighbours); without it, quadratically.
-- **Ground set**: map planes whose normal is within ``ground_tolerance`` of the map's up direction.
+- **Horizontal anchors**: map planes whose normal is within ``ground_tolerance`` of the map's up direction (floor,
+  table tops: facing +1) or of down (ceilings: facing -1); the paper's ground constraint, extended to ceilings.
 - **Spatial hash** of the map planes' samples on a grid of ``extent_cell_m`` dilated by one cell: which map planes
   have samples near a point, in one lookup (verification, Eq. 10-11).
 """
@@ -23,15 +24,20 @@ from reloc.matching import _kernels as K
 from reloc.matching.params import MatchingParams
 from reloc.planeset import PlaneSet
 
-__all__ = ["MapIndex", "build_index", "ground_mask"]
+__all__ = ["MapIndex", "build_index", "horizontal_facing"]
 
 
-def ground_mask(planes: PlaneSet, tolerance_rad: float) -> np.ndarray:
-    """(N,) bool: planes facing up (normal within ``tolerance_rad`` of ``-gravity``); all False without gravity."""
+def horizontal_facing(planes: PlaneSet, tolerance_rad: float) -> np.ndarray:
+    """(N,) int8: +1 for planes facing up (normal within ``tolerance_rad`` of ``-gravity``), -1 facing down, 0
+    otherwise (and everywhere without gravity)."""
+    out = np.zeros(len(planes), dtype=np.int8)
     if planes.gravity is None or len(planes) == 0:
-        return np.zeros(len(planes), dtype=bool)
-    up = -planes.gravity
-    return planes.normals @ up >= math.cos(tolerance_rad)
+        return out
+    c = planes.normals @ -planes.gravity
+    cos_tol = math.cos(tolerance_rad)
+    out[c >= cos_tol] = 1
+    out[c <= -cos_tol] = -1
+    return out
 
 
 @dataclass(frozen=True)
@@ -41,7 +47,7 @@ class MapIndex:
     centroids: np.ndarray  # (N, 3)
     radii: np.ndarray  # (N,)
     areas: np.ndarray  # (N,)
-    is_ground: np.ndarray  # (N,) bool
+    facing: np.ndarray  # (N,) int8: +1 up, -1 down, 0 not horizontal
     pair_first: np.ndarray  # (P,) int32, sorted by pair_angle
     pair_second: np.ndarray  # (P,) int32
     pair_angle: np.ndarray  # (P,) float64 radians
@@ -114,7 +120,7 @@ def build_index(planes: PlaneSet, params: MatchingParams) -> MapIndex:
         centroids=centroids,
         radii=radii,
         areas=np.ascontiguousarray(planes.areas),
-        is_ground=ground_mask(planes, params.ground_tolerance_rad),
+        facing=horizontal_facing(planes, params.ground_tolerance_rad),
         pair_first=np.ascontiguousarray(first[order]),
         pair_second=np.ascontiguousarray(second[order]),
         pair_angle=np.ascontiguousarray(ang[order]),

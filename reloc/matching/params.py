@@ -25,7 +25,8 @@ class MatchingParams:
     triplet_max_angle_rad: float = math.radians(140.0)
     degenerate_min_angle_rad: float = math.radians(15.0)
     pair_angle_tolerance_rad: float = math.radians(6.0)
-    max_sphere_gap_m: float = 1.0
+    max_sphere_gap_m: float = 3.0
+    gap_tolerance_m: float = 0.2
     min_area_ratio: float = 0.5
     min_triple_product: float = 0.2
     max_condition_number: float = 50.0
@@ -98,6 +99,7 @@ class MatchingParams:
             degenerate_min_angle_rad=r(m.degenerate_min_angle_deg),
             pair_angle_tolerance_rad=r(m.pair_angle_tolerance_deg),
             max_sphere_gap_m=m.max_sphere_gap_m,
+            gap_tolerance_m=m.gap_tolerance_m,
             min_area_ratio=m.min_area_ratio,
             min_triple_product=m.min_triple_product,
             max_condition_number=m.max_condition_number,

@@ -22,10 +22,16 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from reloc.matching import _kernels as K
-from reloc.matching.index import MapIndex, build_index, ground_mask
+from reloc.matching.index import MapIndex, build_index, horizontal_facing
 from reloc.matching.params import MatchingParams
 from reloc.matching.scoring import Decision, decide, ratio
-from reloc.matching.selection import candidate_triplets, order_submap_planes, submap_triplets
+from reloc.matching.selection import (
+    candidate_triplets,
+    gap_bounds,
+    order_submap_planes,
+    sample_distances,
+    submap_triplets,
+)
 from reloc.matching.transform import rotation_from_normal_pairs, translation_from_offsets
 from reloc.planeset import PlaneSet
 from reloc.transforms import transform_from_rotation_translation
@@ -207,7 +213,8 @@ class Relocalizer:
         used, order, vs_ptr, vs_pts = self.prepare(submap)
         S = len(used)
         counts["planes_used"] = S
-        is_ground = ground_mask(used, p.ground_tolerance_rad)
+        facing = horizontal_facing(used, p.ground_tolerance_rad)
+        distances = sample_distances(vs_ptr, vs_pts)
         timings["prepare"] = (time.perf_counter() - t0) * 1e3
         min_matched = p.min_matched_planes if p.scene_uniqueness else 3
 
@@ -226,10 +233,11 @@ class Relocalizer:
         for k in rounds:
             counts["rounds"] += 1
             t0 = time.perf_counter()
-            tri, use_ground = submap_triplets(used.normals, is_ground, np.arange(k), prev, p)
+            tri, face0, use_ground = submap_triplets(used.normals, facing, np.arange(k), prev, p)
             prev = k
             cand, generated, truncated = candidate_triplets(
-                self.index, used.normals, used.areas, tri, use_ground, p, brute_force=self.brute_force
+                self.index, used.normals, used.areas, tri, face0, gap_bounds(tri, distances, p), use_ground, p,
+                brute_force=self.brute_force,
             )
             counts["submap_triplets"] += len(tri)
             counts["generated"] += generated

@@ -17,17 +17,17 @@ import math
 import numpy as np
 
 from reloc.matching import _kernels as K
-from reloc.matching.index import MapIndex, ground_mask
+from reloc.matching.index import MapIndex, horizontal_facing
 from reloc.matching.params import MatchingParams
 from reloc.planeset import PlaneSet
 
-__all__ = ["order_submap_planes", "submap_triplets", "candidate_triplets"]
+__all__ = ["order_submap_planes", "submap_triplets", "gap_bounds", "sample_distances", "candidate_triplets"]
 
 
 def order_submap_planes(planes: PlaneSet, params: MatchingParams) -> np.ndarray:
     """Indices of ``planes`` in incremental input order, at most ``params.max_submap_planes`` of them.
 
-    The ground (the largest plane facing up) first; then, while fewer than ``initial_planes`` are chosen, the
+    The ground (the largest plane facing up, else the largest horizontal plane) first; then, while fewer than ``initial_planes`` are chosen, the
     largest plane whose normal is at least 30 degrees from every chosen one (or, when none is left, the plane most
     separated in angle); then the others by decreasing area. Ties are broken by the plane's geometry, not its index,
     so the order does not depend on the order of the input.
@@ -39,9 +39,10 @@ def order_submap_planes(planes: PlaneSet, params: MatchingParams) -> np.ndarray:
     # Deterministic tie-break independent of input order: area, then the centroid coordinates.
     by_area = np.lexsort((planes.centroids[:, 2], planes.centroids[:, 1], planes.centroids[:, 0], -areas))
     chosen: list[int] = []
-    ground = ground_mask(planes, params.ground_tolerance_rad)
-    if ground.any():
-        chosen.append(int(next(i for i in by_area if ground[i])))
+    facing = horizontal_facing(planes, params.ground_tolerance_rad)
+    if (facing != 0).any():
+        first = next((i for i in by_area if facing[i] == 1), None)
+        chosen.append(int(first if first is not None else next(i for i in by_area if facing[i] != 0)))
     sep = math.cos(math.radians(30.0))
     while len(chosen) < min(params.initial_planes, n):
         rest = [int(i) for i in by_area if i not in chosen]
@@ -54,17 +55,20 @@ def order_submap_planes(planes: PlaneSet, params: MatchingParams) -> np.ndarray:
 
 
 def submap_triplets(
-    normals: np.ndarray, is_ground: np.ndarray, positions: np.ndarray, new_from: int, params: MatchingParams
-) -> tuple[np.ndarray, bool]:
-    """Submap triplets among ``positions`` (plane indices in input order) having at least one plane at a position
-    ``>= new_from`` (the planes added in this round of the incremental input).
+    normals: np.ndarray, facing: np.ndarray, positions: np.ndarray, new_from: int, params: MatchingParams
+) -> tuple[np.ndarray, np.ndarray, bool]:
+    """Submap triplets among ``positions`` (plane indices) having at least one plane at a position ``>= new_from``
+    (the planes added in this round of the incremental input).
 
-    Returns ``(triplets (T, 3) int32, ground)``; with ``ground`` the first plane of each row is a ground plane and
-    the map side must match it with a ground plane. Rows pass the angle window (all three pairs) and the
+    Returns ``(triplets (T, 3) int32, face0 (T,) int8, ground)``. With ``ground`` (structural constraints and a
+    horizontal plane among the positions) each row holds exactly one horizontal plane, first, facing ``face0``
+    (+1 up, -1 down), and the map side must match it with a horizontal plane facing the same way: the paper's
+    ground constraint (Eq. 4-5), extended to ceilings. Rows pass the angle window (all three pairs) and the
     triple-product test (the normals span 3-D space).
     """
     k = len(positions)
     structural = params.structural_constraints
+    is_ground = facing != 0
     use_ground = structural and bool(np.any(is_ground[positions]))
     if structural:
         lo, hi = params.triplet_min_angle_rad, params.triplet_max_angle_rad
@@ -83,7 +87,7 @@ def submap_triplets(
             tri = [g[0], *others]
         rows.append(tri)
     if not rows:
-        return np.zeros((0, 3), np.int32), use_ground
+        return np.zeros((0, 3), np.int32), np.zeros(0, np.int8), use_ground
     tri = np.array(rows, dtype=np.int32)
     n0, n1, n2 = normals[tri[:, 0]], normals[tri[:, 1]], normals[tri[:, 2]]
 
@@ -95,7 +99,36 @@ def submap_triplets(
         a = ang(u, v)
         keep &= (a >= lo) & (a <= hi)
     keep &= np.abs(np.sum(n0 * np.cross(n1, n2), axis=1)) >= params.min_triple_product
-    return np.ascontiguousarray(tri[keep]), use_ground
+    tri = np.ascontiguousarray(tri[keep])
+    face0 = np.ascontiguousarray(facing[tri[:, 0]].astype(np.int8)) if use_ground else np.zeros(len(tri), np.int8)
+    return tri, face0, use_ground
+
+
+def sample_distances(ptr: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """(S, S) smallest distance between the sample sets of every two planes (CSR ``ptr``, ``points``).
+
+    Computed on the few verification samples of each plane, so it over-estimates the true smallest distance
+    between the planes' points by at most the sample spacing.
+    """
+    S = len(ptr) - 1
+    if S == 0 or len(points) == 0:
+        return np.zeros((S, S))
+    d = np.linalg.norm(points[:, None, :] - points[None, :, :], axis=2)
+    starts = np.asarray(ptr[:-1])
+    rows = np.minimum.reduceat(d, starts, axis=0)
+    return np.minimum.reduceat(rows, starts, axis=1)
+
+
+def gap_bounds(triplets: np.ndarray, distances: np.ndarray, params: MatchingParams) -> np.ndarray:
+    """(T, 3) upper bounds of the sphere gaps ``(g01, g02, g12)`` of the map planes of each triplet.
+
+    A map plane's sphere holds every point of the plane, so the gap between two map spheres is at most the
+    distance between what the submap saw of the two planes (plus a tolerance for noise), and at most the index's
+    ``max_sphere_gap_m``.
+    """
+    t = triplets
+    g = np.stack([distances[t[:, 0], t[:, 1]], distances[t[:, 0], t[:, 2]], distances[t[:, 1], t[:, 2]]], axis=1)
+    return np.ascontiguousarray(np.minimum(g + params.gap_tolerance_m, params.max_sphere_gap_m))
 
 
 def candidate_triplets(
@@ -103,6 +136,8 @@ def candidate_triplets(
     sub_normals: np.ndarray,
     sub_areas: np.ndarray,
     triplets: np.ndarray,
+    face0: np.ndarray,
+    gaps: np.ndarray,
     require_ground: bool,
     params: MatchingParams,
     *,
@@ -110,6 +145,7 @@ def candidate_triplets(
 ) -> tuple[np.ndarray, int, bool]:
     """Candidate correspondences ``(j0, j1, j2, i0, i1, i2)`` (H, 6) int32 for the submap ``triplets``.
 
+    ``face0`` (T,) and ``gaps`` (T, 3) come from :func:`submap_triplets` and :func:`gap_bounds`.
     Returns ``(candidates, generated, truncated)``: ``generated`` counts the map triplets looked at (the cost of
     the search), ``truncated`` is True when more than ``params.max_candidates`` agreed (only that many are kept).
     ``brute_force`` enumerates every ordered map triplet instead of the index; it must give the same rows.
@@ -126,19 +162,22 @@ def candidate_triplets(
     structural = params.structural_constraints
     sub_normals = np.ascontiguousarray(sub_normals, dtype=np.float64)
     sub_areas = np.ascontiguousarray(sub_areas, dtype=np.float64)
+    triplets = np.ascontiguousarray(triplets, dtype=np.int32)
+    face0 = np.ascontiguousarray(face0, dtype=np.int8)
+    gaps = np.ascontiguousarray(gaps, dtype=np.float64)
     common = (
-        params.pair_angle_tolerance_rad, bool(require_ground), structural, params.max_sphere_gap_m, structural,
-        params.min_area_ratio, params.min_triple_product,
+        params.pair_angle_tolerance_rad, bool(require_ground), structural, structural, params.min_area_ratio,
+        params.min_triple_product,
     )
     if brute_force:
         count, generated = K.brute_force_candidates(
-            triplets, sub_normals, sub_areas, index.normals, index.centroids, index.radii, index.areas,
-            index.is_ground, *common, out,
+            triplets, face0, gaps, sub_normals, sub_areas, index.normals, index.centroids, index.radii, index.areas,
+            index.facing, *common, out,
         )
     else:
         count, generated = K.join_candidates(
-            triplets, sub_normals, sub_areas, index.normals, index.centroids, index.radii, index.areas,
-            index.is_ground, index.pair_first, index.pair_second, index.pair_angle, index.adj_ptr, index.adj_ids,
+            triplets, face0, gaps, sub_normals, sub_areas, index.normals, index.centroids, index.radii, index.areas,
+            index.facing, index.pair_first, index.pair_second, index.pair_angle, index.adj_ptr, index.adj_ids,
             index.adj_angle, *common, out,
         )
     return out[: min(count, cap)], int(generated), count > cap

@@ -1,0 +1,222 @@
+"""Building a global plane map from a posed sequence, and submaps from a window of frames.
+
+- :func:`select_keyframes`: a frame becomes a keyframe after the camera moved ``keyframe_min_translation_m`` or
+  turned ``keyframe_min_rotation_rad`` since the last keyframe (the first frame always is one).
+- :class:`MapBuilder`: per keyframe, planes (camera frame) are moved into the map frame with ``T_map_cam`` and
+  fused (:class:`~reloc.mapping.fusion.PlaneAccumulator`); :meth:`MapBuilder.finish` merges planes that grew
+  together and returns the :class:`~reloc.mapping.plane_map.PlaneMap`.
+- :func:`build_map`: the one-shot call over frames with a plane source (extraction, or the simulator's oracle).
+- :func:`build_submap` / :class:`SubmapBuilder`: one frame's planes, or a window of K frames fused with their
+  relative (odometry) poses, in the frame of the latest camera, with its gravity.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+from dataclasses import dataclass
+from typing import Callable, Iterable
+
+import numpy as np
+
+from reloc.mapping.fusion import FusionParams, PlaneAccumulator
+from reloc.mapping.plane_map import PlaneMap
+from reloc.planeset import PlaneSet
+from reloc.transforms import check_transform, invert, rotation_angle_rad
+
+__all__ = ["MappingParams", "select_keyframes", "MapBuilder", "build_map", "build_submap", "SubmapBuilder"]
+
+
+@dataclass(frozen=True)
+class MappingParams:
+    keyframe_min_translation_m: float = 0.2
+    keyframe_min_rotation_rad: float = math.radians(10.0)
+    fuse_max_angle_rad: float = math.radians(8.0)
+    fuse_max_offset_m: float = 0.06
+    fuse_min_overlap: float = 0.0
+    map_sample_spacing_m: float = 0.1
+    min_observations: int = 1
+    submap_window_frames: int = 1
+
+    def __post_init__(self) -> None:
+        if self.keyframe_min_translation_m < 0 or self.keyframe_min_rotation_rad < 0:
+            raise ValueError("MappingParams: keyframe thresholds must be >= 0, got "
+                             f"{self.keyframe_min_translation_m} m and {self.keyframe_min_rotation_rad} rad")
+        if self.min_observations < 1:
+            raise ValueError(f"MappingParams.min_observations: expected >= 1, got {self.min_observations}")
+        if self.submap_window_frames < 1:
+            raise ValueError(f"MappingParams.submap_window_frames: expected >= 1, got {self.submap_window_frames}")
+        self.fusion  # validates the fusion thresholds
+
+    @property
+    def fusion(self) -> FusionParams:
+        return FusionParams(self.fuse_max_angle_rad, self.fuse_max_offset_m, self.fuse_min_overlap,
+                            self.map_sample_spacing_m)
+
+    @classmethod
+    def from_config(cls, cfg) -> "MappingParams":
+        m = cfg.mapping
+        return cls(
+            keyframe_min_translation_m=m.keyframe_min_translation_m,
+            keyframe_min_rotation_rad=math.radians(m.keyframe_min_rotation_deg),
+            fuse_max_angle_rad=math.radians(m.fuse_max_angle_deg),
+            fuse_max_offset_m=m.fuse_max_offset_m,
+            fuse_min_overlap=m.fuse_min_overlap,
+            map_sample_spacing_m=m.map_sample_spacing_m,
+            min_observations=m.min_observations,
+            submap_window_frames=m.submap_window_frames,
+        )
+
+
+def select_keyframes(T_world_cams: np.ndarray, min_translation_m: float, min_rotation_rad: float) -> np.ndarray:
+    """Indices of the keyframes among (N, 4, 4) poses: the first, then each one far enough from the last kept."""
+    poses = np.asarray(T_world_cams, dtype=np.float64)
+    if poses.ndim != 3 or poses.shape[1:] != (4, 4):
+        raise ValueError(f"T_world_cams: expected shape (N, 4, 4), got {poses.shape}")
+    keep = []
+    last = None
+    for i, T in enumerate(poses):
+        if last is None:
+            keep.append(i)
+            last = T
+            continue
+        moved = float(np.linalg.norm(T[:3, 3] - last[:3, 3]))
+        turned = rotation_angle_rad(last[:3, :3].T @ T[:3, :3])
+        if moved >= min_translation_m or turned >= min_rotation_rad:
+            keep.append(i)
+            last = T
+    return np.array(keep, dtype=np.int64)
+
+
+class MapBuilder:
+    """Fuses keyframe plane sets into a map; gravity in the map frame is averaged from the keyframes' gravity."""
+
+    def __init__(self, params: MappingParams | None = None):
+        self.params = params or MappingParams()
+        self._acc = PlaneAccumulator(self.params.fusion, frame="map")
+        self._gravity_sum = np.zeros(3)
+        self.keyframes = 0
+
+    def add(self, planes_cam: PlaneSet, T_map_cam: np.ndarray) -> np.ndarray:
+        """Fuse one keyframe's planes (camera frame) seen from ``T_map_cam``; returns their map plane indices
+        (indices into the accumulator, final indices are assigned by :meth:`finish`)."""
+        if not isinstance(planes_cam, PlaneSet):
+            raise ValueError(f"planes_cam: expected a PlaneSet, got {type(planes_cam).__name__}")
+        T = check_transform(T_map_cam, "T_map_cam")
+        planes_map = planes_cam.transformed(T, "map")
+        if planes_map.gravity is not None:
+            self._gravity_sum += planes_map.gravity
+        self.keyframes += 1
+        return self._acc.add(planes_map)
+
+    def finish(self, meta: dict | None = None) -> PlaneMap:
+        """Merge planes that grew together and return the map (gravity -z when no keyframe carried gravity)."""
+        self._acc.merge_pass()
+        g = self._gravity_sum
+        gravity = g / np.linalg.norm(g) if np.linalg.norm(g) > 1e-9 else np.array([0.0, 0.0, -1.0])
+        planes, obs = self._acc.to_planeset(gravity=gravity, min_observations=self.params.min_observations)
+        info = {"keyframe_count": self.keyframes}
+        info.update(meta or {})
+        return PlaneMap(planes, obs, info)
+
+
+def build_map(
+    frames: Iterable,
+    plane_source: Callable,
+    params: MappingParams | None = None,
+    *,
+    meta: dict | None = None,
+    progress: Callable[[int], None] | None = None,
+) -> PlaneMap:
+    """One-shot: the plane map of posed ``frames`` (DepthFrames with ``T_world_cam``; the world frame becomes the
+    map frame). ``plane_source(frame) -> PlaneSet`` gives each keyframe's planes in its camera frame;
+    ``progress(1)`` is called once per frame read. Frames without a pose are skipped and counted in the metadata.
+    """
+    params = params or MappingParams()
+    builder = MapBuilder(params)
+    last = None
+    n_frames = n_unposed = n_failed = 0
+    for frame in frames:
+        n_frames += 1
+        if progress is not None:
+            progress(1)
+        T = getattr(frame, "T_world_cam", None)
+        if T is None:
+            n_unposed += 1
+            continue
+        if last is not None:
+            moved = float(np.linalg.norm(T[:3, 3] - last[:3, 3]))
+            turned = rotation_angle_rad(last[:3, :3].T @ T[:3, :3])
+            if moved < params.keyframe_min_translation_m and turned < params.keyframe_min_rotation_rad:
+                continue
+        try:
+            planes = plane_source(frame)
+        except ValueError:
+            n_failed += 1  # a bad frame is counted, the map goes on
+            continue
+        builder.add(planes, T)
+        last = T
+    info = {"frame_count": n_frames, "frames_without_pose": n_unposed, "frames_failed": n_failed}
+    info.update(meta or {})
+    return builder.finish(info)
+
+
+def build_submap(
+    plane_sets: list[PlaneSet],
+    T_odom_cams: list[np.ndarray] | np.ndarray | None = None,
+    params: MappingParams | None = None,
+) -> PlaneSet:
+    """The submap of a window of frames in the frame of the LAST camera (frame "cam", its gravity).
+
+    ``plane_sets``: each frame's planes in its own camera frame; ``T_odom_cams``: their poses in any common frame
+    (odometry; only relative poses matter), required when more than one frame is given. One frame returns its
+    planes unchanged (labels dropped).
+    """
+    if not plane_sets:
+        raise ValueError("plane_sets: expected at least one plane set, got none")
+    if len(plane_sets) == 1:
+        return plane_sets[0].subset(np.arange(len(plane_sets[0])))
+    if T_odom_cams is None or len(T_odom_cams) != len(plane_sets):
+        raise ValueError(f"T_odom_cams: expected {len(plane_sets)} poses (one per plane set), got "
+                         f"{None if T_odom_cams is None else len(T_odom_cams)}")
+    params = params or MappingParams()
+    T_last_odom = invert(check_transform(T_odom_cams[-1], "T_odom_cams[-1]"))
+    acc = PlaneAccumulator(params.fusion, frame="cam")
+    for k, (ps, T) in enumerate(zip(plane_sets, T_odom_cams)):
+        T_last_k = T_last_odom @ check_transform(T, f"T_odom_cams[{k}]")
+        acc.add(ps.transformed(T_last_k, "cam"))
+    acc.merge_pass()
+    gravity = plane_sets[-1].gravity
+    if gravity is None:
+        gs = [T_last_odom[:3, :3] @ np.asarray(T)[:3, :3] @ ps.gravity for ps, T in zip(plane_sets, T_odom_cams)
+              if ps.gravity is not None]
+        gravity = np.mean(gs, axis=0) if gs else None
+    planes, _ = acc.to_planeset(gravity=gravity)
+    return planes
+
+
+class SubmapBuilder:
+    """A sliding window of the last K frames' planes and odometry poses; :meth:`submap` fuses them."""
+
+    def __init__(self, params: MappingParams | None = None, window_frames: int | None = None):
+        self.params = params or MappingParams()
+        k = window_frames or self.params.submap_window_frames
+        if k < 1:
+            raise ValueError(f"window_frames: expected >= 1, got {k}")
+        self._planes: deque = deque(maxlen=k)
+        self._poses: deque = deque(maxlen=k)
+
+    def push(self, planes_cam: PlaneSet, T_odom_cam: np.ndarray | None) -> None:
+        """Add a frame; without odometry the window restarts (relative poses are unknown)."""
+        if T_odom_cam is None:
+            self._planes.clear()
+            self._poses.clear()
+            T_odom_cam = np.eye(4)
+        self._planes.append(planes_cam)
+        self._poses.append(np.asarray(T_odom_cam, dtype=np.float64))
+
+    def __len__(self) -> int:
+        return len(self._planes)
+
+    def submap(self) -> PlaneSet:
+        return build_submap(list(self._planes), list(self._poses), self.params)

@@ -1,0 +1,271 @@
+"""Fusing planes seen from several poses into one plane per physical surface.
+
+Planes (already in one common frame) are associated with the planes accumulated so far when their normals agree
+within ``max_angle_rad``, the new plane's samples lie within ``max_offset_m`` of the old plane, and the two touch:
+at least ``min_overlap`` of the new plane's sample voxels have a voxel of the old plane among their 26 neighbours
+(0 means one is enough). Associated planes are fused through their sufficient statistics (count, sum of points,
+sum of outer products), so the fused plane is the least-squares plane of all supporting points without revisiting
+them; samples are fused per voxel (sum and count per voxel of edge ``spacing_m``). A new plane touching several
+accumulated planes merges them all (a wall seen in pieces becomes one plane).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from reloc.planeset import PlaneSet
+
+__all__ = [
+    "FusionParams",
+    "PlaneAccumulator",
+    "plane_fit_from_stats",
+    "voxel_keys",
+    "patch_area",
+]
+
+_OFF = 1 << 20
+_MASK = (1 << 21) - 1
+
+
+@dataclass(frozen=True)
+class FusionParams:
+    max_angle_rad: float = math.radians(8.0)
+    max_offset_m: float = 0.06
+    min_overlap: float = 0.0
+    spacing_m: float = 0.1
+
+    def __post_init__(self) -> None:
+        if not (0 < self.max_angle_rad < math.pi / 2):
+            raise ValueError(f"max_angle_rad: expected in (0, pi/2), got {self.max_angle_rad}")
+        if not self.max_offset_m > 0:
+            raise ValueError(f"max_offset_m: expected > 0, got {self.max_offset_m}")
+        if not 0 <= self.min_overlap <= 1:
+            raise ValueError(f"min_overlap: expected in [0, 1], got {self.min_overlap}")
+        if not self.spacing_m > 0:
+            raise ValueError(f"spacing_m: expected > 0, got {self.spacing_m}")
+
+
+def voxel_keys(points: np.ndarray, spacing_m: float) -> np.ndarray:
+    """(N,) int64 key of the voxel of edge ``spacing_m`` holding each point (N, 3)."""
+    ijk = np.floor(np.asarray(points, dtype=np.float64) / spacing_m).astype(np.int64) + _OFF
+    ijk &= _MASK
+    return (ijk[:, 0] << 42) | (ijk[:, 1] << 21) | ijk[:, 2]
+
+
+_D = np.array([-1, 0, 1], dtype=np.int64)
+_DI, _DJ, _DK = (a.ravel() for a in np.meshgrid(_D, _D, _D, indexing="ij"))
+_NEIGHBOUR_OFFSETS = (_DI << 42) + (_DJ << 21) + _DK
+
+
+def _neighbours(keys: np.ndarray) -> np.ndarray:
+    """(K, 27) keys of the 27-neighbourhood of each key (keys are packed so that offsets add)."""
+    return keys[:, None] + _NEIGHBOUR_OFFSETS[None, :]
+
+
+def plane_fit_from_stats(
+    sums: np.ndarray, scatters: np.ndarray, counts: np.ndarray, reference_normals: np.ndarray | None = None
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Least-squares planes from sufficient statistics.
+
+    ``sums`` (N, 3), ``scatters`` (N, 3, 3) (sum of ``p p^T``), ``counts`` (N,). Returns ``(normals (N, 3),
+    offsets (N,), centroids (N, 3), covariances (N, 4, 4))``: the normal is the smallest eigenvector of the
+    centred scatter, turned to agree with ``reference_normals`` when given; the (n, d) covariance is
+    ``sigma^2 (P H P)^+`` with ``H = [[S, s], [s^T, N]]`` the normal matrix of the point-to-plane fit,
+    ``sigma^2`` the residual variance and ``P`` removing the unit-norm direction ``(n, 0)``.
+    """
+    sums = np.asarray(sums, dtype=np.float64).reshape(-1, 3)
+    scatters = np.asarray(scatters, dtype=np.float64).reshape(-1, 3, 3)
+    counts = np.asarray(counts, dtype=np.float64).reshape(-1)
+    if np.any(counts < 3):
+        raise ValueError(f"counts: expected at least 3 points per plane, got min {counts.min() if counts.size else 0}")
+    c = sums / counts[:, None]
+    cov = scatters / counts[:, None, None] - c[:, :, None] * c[:, None, :]
+    vals, vecs = np.linalg.eigh(cov)
+    normals = vecs[:, :, 0]
+    if reference_normals is not None:
+        flip = np.sum(normals * np.asarray(reference_normals).reshape(-1, 3), axis=1) < 0
+        normals[flip] *= -1
+    offsets = -np.sum(normals * c, axis=1)
+    sigma2 = np.maximum(vals[:, 0], 0.0) * counts / np.maximum(counts - 3, 1)
+    H = np.zeros((len(counts), 4, 4))
+    H[:, :3, :3] = scatters
+    H[:, :3, 3] = sums
+    H[:, 3, :3] = sums
+    H[:, 3, 3] = counts
+    v = np.concatenate([normals, np.zeros((len(counts), 1))], axis=1)
+    P = np.eye(4)[None] - v[:, :, None] * v[:, None, :]
+    covs = sigma2[:, None, None] * np.linalg.pinv(P @ H @ P, hermitian=True)
+    return normals, offsets, c, covs
+
+
+def patch_area(points: np.ndarray, normal: np.ndarray, patch_m: float) -> float:
+    """Area (m^2) of the ``patch_m`` x ``patch_m`` cells of the plane occupied by ``points`` (M, 3)."""
+    if len(points) == 0:
+        return 0.0
+    n = np.asarray(normal, dtype=np.float64)
+    helper = np.array([1.0, 0.0, 0.0]) if abs(n[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
+    u = np.cross(n, helper)
+    u /= np.linalg.norm(u)
+    v = np.cross(n, u)
+    uv = np.floor(np.stack([points @ u, points @ v], axis=1) / patch_m).astype(np.int64)
+    return float(len(np.unique(uv, axis=0)) * patch_m**2)
+
+
+class PlaneAccumulator:
+    """Planes fused across observations, in one frame (the map, or the latest camera of a submap)."""
+
+    def __init__(self, params: FusionParams, frame: str = "map"):
+        self.params = params
+        self.frame = frame
+        self.normals: list[np.ndarray] = []
+        self.sums: list[np.ndarray] = []
+        self.scatters: list[np.ndarray] = []
+        self.counts: list[int] = []
+        self.seen_in: list[set] = []  # ids of the observations (add calls) that saw each plane
+        self.keys: list[np.ndarray] = []  # sorted unique voxel keys of the samples
+        self.vsum: list[np.ndarray] = []  # (K, 3) sum of sample points per voxel
+        self.vcnt: list[np.ndarray] = []  # (K,) number of sample points per voxel
+        self.offsets: list[float] = []
+        self.alive: list[bool] = []
+        self._obs_id = 0
+
+    def __len__(self) -> int:
+        return int(sum(self.alive))
+
+    # -- association --------------------------------------------------------------------------------------------
+
+    def _touching(self, keys_q: np.ndarray, m: int) -> float:
+        """Fraction of the voxels ``keys_q`` with a voxel of plane ``m`` among their 26 neighbours."""
+        km = self.keys[m]
+        if len(keys_q) == 0 or len(km) == 0:
+            return 0.0
+        around = _neighbours(keys_q)  # (K, 27)
+        pos = np.searchsorted(km, around).clip(max=len(km) - 1)
+        return float(np.any(km[pos] == around, axis=1).mean())
+
+    def _associate(self, n: np.ndarray, pts: np.ndarray, keys_q: np.ndarray) -> list[int]:
+        p = self.params
+        cos_max = math.cos(p.max_angle_rad)
+        out = []
+        for m in range(len(self.normals)):
+            if not self.alive[m] or float(self.normals[m] @ n) < cos_max:
+                continue
+            dist = np.abs(pts @ self.normals[m] + self.offsets[m])
+            if len(dist) == 0 or float(np.median(dist)) > p.max_offset_m:
+                continue
+            frac = self._touching(keys_q, m)
+            if frac > 0 and frac >= p.min_overlap:
+                out.append(m)
+        return out
+
+    # -- fusion -------------------------------------------------------------------------------------------------
+
+    def _refit(self, m: int) -> None:
+        n, d, _, _ = plane_fit_from_stats(self.sums[m][None], self.scatters[m][None], np.array([self.counts[m]]),
+                                          self.normals[m][None])
+        self.normals[m] = n[0]
+        self.offsets[m] = float(d[0])
+
+    def _merge_into(self, dst: int, src: int) -> None:
+        self.sums[dst] = self.sums[dst] + self.sums[src]
+        self.scatters[dst] = self.scatters[dst] + self.scatters[src]
+        self.counts[dst] += self.counts[src]
+        self.seen_in[dst] |= self.seen_in[src]
+        keys = np.concatenate([self.keys[dst], self.keys[src]])
+        vs = np.concatenate([self.vsum[dst], self.vsum[src]])
+        vc = np.concatenate([self.vcnt[dst], self.vcnt[src]])
+        uk, inv = np.unique(keys, return_inverse=True)
+        self.keys[dst] = uk
+        self.vsum[dst] = np.stack([np.bincount(inv, vs[:, a], len(uk)) for a in range(3)], axis=1)
+        self.vcnt[dst] = np.bincount(inv, vc, len(uk))
+        self.alive[src] = False
+
+    def add(self, planes: PlaneSet) -> np.ndarray:
+        """Fuse ``planes`` (in this accumulator's frame); returns (N,) the accumulated plane each one went to."""
+        p = self.params
+        self._obs_id += 1
+        targets = np.empty(len(planes), np.int64)
+        for q in range(len(planes)):
+            n = planes.normals[q]
+            if planes.counts[q] < 3:
+                targets[q] = -1
+                continue
+            pts = planes.samples_of(q).astype(np.float64)
+            if len(pts) == 0:
+                pts = planes.centroids[q][None]
+            keys_q = voxel_keys(pts, p.spacing_m)
+            uk, inv = np.unique(keys_q, return_inverse=True)
+            vs = np.stack([np.bincount(inv, pts[:, a], len(uk)) for a in range(3)], axis=1)
+            vc = np.bincount(inv, minlength=len(uk)).astype(np.float64)
+            hits = self._associate(n, pts, uk)
+            # A new entry, then merged into the first associated plane (and every other associated plane into it).
+            self.normals.append(n.copy())
+            self.offsets.append(float(planes.offsets[q]))
+            self.sums.append(planes.sums[q].copy())
+            self.scatters.append(planes.scatters[q].copy())
+            self.counts.append(int(planes.counts[q]))
+            self.seen_in.append({self._obs_id})
+            self.keys.append(uk)
+            self.vsum.append(vs)
+            self.vcnt.append(vc)
+            self.alive.append(True)
+            new = len(self.normals) - 1
+            if hits:
+                dst = hits[0]
+                self._merge_into(dst, new)
+                for other in hits[1:]:
+                    self._merge_into(dst, other)
+                self._refit(dst)
+                targets[q] = dst
+            else:
+                targets[q] = new
+        return targets
+
+    def merge_pass(self) -> int:
+        """Merge accumulated planes that now associate with each other (they grew together); returns merges."""
+        merges = 0
+        changed = True
+        while changed:
+            changed = False
+            for m in range(len(self.normals)):
+                if not self.alive[m]:
+                    continue
+                pts = self.vsum[m] / self.vcnt[m][:, None]
+                self.alive[m] = False  # do not associate with itself
+                hits = self._associate(self.normals[m], pts, self.keys[m])
+                self.alive[m] = True
+                if hits:
+                    dst = hits[0]
+                    self._merge_into(dst, m)
+                    for other in hits[1:]:
+                        self._merge_into(dst, other)
+                    self._refit(dst)
+                    merges += 1 + len(hits) - 1
+                    changed = True
+        return merges
+
+    def to_planeset(self, *, gravity: np.ndarray | None, min_observations: int = 1, min_count: int = 3,
+                    area_patch_m: float | None = None) -> tuple[PlaneSet, np.ndarray]:
+        """The accumulated planes as a PlaneSet in this frame, and their observation counts (N,)."""
+        keep = [m for m in range(len(self.normals))
+                if self.alive[m] and len(self.seen_in[m]) >= min_observations and self.counts[m] >= min_count]
+        if not keep:
+            return PlaneSet.empty(frame=self.frame, gravity=gravity), np.zeros(0, np.int64)
+        sums = np.array([self.sums[m] for m in keep])
+        scat = np.array([self.scatters[m] for m in keep])
+        cnt = np.array([self.counts[m] for m in keep], dtype=np.int64)
+        normals, offsets, cents, covs = plane_fit_from_stats(sums, scat, cnt, np.array([self.normals[m] for m in keep]))
+        samples = [self.vsum[m] / self.vcnt[m][:, None] for m in keep]
+        radii = np.array([float(np.linalg.norm(s - c, axis=1).max()) for s, c in zip(samples, cents)])
+        patch = area_patch_m or self.params.spacing_m
+        areas = np.array([patch_area(s, n, patch) for s, n in zip(samples, normals)])
+        ptr = np.concatenate([[0], np.cumsum([len(s) for s in samples])]).astype(np.int64)
+        ps = PlaneSet(
+            normals=normals, offsets=offsets, centroids=cents, counts=cnt, radii=radii, areas=areas,
+            covariances=covs, sums=sums, scatters=scat, sample_points=np.concatenate(samples).astype(np.float32),
+            sample_ptr=ptr, frame=self.frame, gravity=gravity,
+        )
+        return ps, np.array([len(self.seen_in[m]) for m in keep], dtype=np.int64)

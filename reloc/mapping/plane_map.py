@@ -1,0 +1,156 @@
+"""The global plane map and its file.
+
+A map file is an ``.npz`` archive (read with ``allow_pickle=False``) holding the map's plane set (arrays prefixed
+``plane_``), the number of keyframes that saw each plane (``observations``) and a JSON metadata entry (``meta``,
+UTF-8 bytes): ``format`` ("voxelplane-reloc-map"), ``format_version``, ``config`` (the sections used to build it),
+``source``, ``frame_count``, ``keyframe_count``, ``plane_count``, ``plane_source`` and ``created_utc``. Files are
+written atomically. Reading a file of another version, a truncated or corrupted file, or a file that is not a map
+raises :class:`MapFileError` naming the file and the problem.
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+import json
+import zipfile
+import zlib
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from reloc.atomic import atomic_write
+from reloc.planeset import PlaneSet
+
+__all__ = ["PlaneMap", "MapFileError", "save_map", "load_map", "MAP_FORMAT", "MAP_FORMAT_VERSION"]
+
+MAP_FORMAT = "voxelplane-reloc-map"
+MAP_FORMAT_VERSION = 1
+_PREFIX = "plane_"
+
+
+class MapFileError(ValueError):
+    """A map file that cannot be used: ``path`` and ``problem`` say which and why."""
+
+    def __init__(self, path, problem: str):
+        self.path = str(path)
+        self.problem = problem
+        super().__init__(f"{self.path}: {problem}")
+
+
+@dataclass(frozen=True)
+class PlaneMap:
+    """Planes of a scene in the map frame (z up), each seen in ``observations[i]`` keyframes, with metadata."""
+
+    planes: PlaneSet
+    observations: np.ndarray
+    meta: dict = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.planes, PlaneSet):
+            raise ValueError(f"PlaneMap.planes: expected a PlaneSet, got {type(self.planes).__name__}")
+        obs = np.ascontiguousarray(self.observations, dtype=np.int64).reshape(-1)
+        if obs.shape != (len(self.planes),):
+            raise ValueError(f"PlaneMap.observations: expected shape ({len(self.planes)},), got {obs.shape}")
+        object.__setattr__(self, "observations", obs)
+        if self.planes.frame != "map":
+            raise ValueError(f"PlaneMap.planes: expected frame 'map', got {self.planes.frame!r}")
+
+    def __len__(self) -> int:
+        return len(self.planes)
+
+    @property
+    def gravity(self) -> np.ndarray | None:
+        return self.planes.gravity
+
+    def summary(self) -> dict:
+        """Counts and extents for ``reloc map info``."""
+        p = self.planes
+        up = -p.gravity if p.gravity is not None else np.array([0.0, 0.0, 1.0])
+        horizontal = np.abs(p.normals @ up) > np.cos(np.radians(15))
+        lo = p.sample_points.min(axis=0).tolist() if len(p.sample_points) else None
+        hi = p.sample_points.max(axis=0).tolist() if len(p.sample_points) else None
+        return {
+            "planes": len(p),
+            "horizontal_planes": int(horizontal.sum()),
+            "other_planes": int((~horizontal).sum()),
+            "total_area_m2": round(float(p.areas.sum()), 3),
+            "samples": int(len(p.sample_points)),
+            "bounds_min_m": lo and [round(v, 3) for v in lo],
+            "bounds_max_m": hi and [round(v, 3) for v in hi],
+            "gravity": None if p.gravity is None else [round(float(v), 6) for v in p.gravity],
+            "observations_median": float(np.median(self.observations)) if len(self.observations) else 0.0,
+        }
+
+
+def save_map(path, plane_map: PlaneMap) -> Path:
+    """Write ``plane_map`` to ``path`` (.npz) atomically; ``meta`` gains format, version, plane count and time."""
+    if not isinstance(plane_map, PlaneMap):
+        raise ValueError(f"plane_map: expected a PlaneMap, got {type(plane_map).__name__}")
+    path = Path(path)
+    meta = dict(plane_map.meta)
+    meta.update(
+        format=MAP_FORMAT,
+        format_version=MAP_FORMAT_VERSION,
+        plane_count=len(plane_map),
+        created_utc=meta.get("created_utc") or _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
+    )
+    arrays = plane_map.planes.to_arrays(_PREFIX)
+    arrays["observations"] = plane_map.observations
+    arrays["meta"] = np.frombuffer(json.dumps(meta, sort_keys=True).encode("utf-8"), dtype=np.uint8)
+    with atomic_write(path, "wb") as fh:
+        np.savez_compressed(fh, **arrays)
+    return path
+
+
+def load_map(path) -> PlaneMap:
+    """Read a map written by :func:`save_map`; raises :class:`MapFileError` for anything else."""
+    path = Path(path)
+    if not path.exists():
+        raise MapFileError(path, "no such file")
+    if path.is_dir():
+        raise MapFileError(path, "is a directory, expected a map file (.npz)")
+    try:
+        npz = np.load(path, allow_pickle=False)
+    except (zipfile.BadZipFile, zlib.error, EOFError, OSError, ValueError) as exc:
+        raise MapFileError(path, f"not a map file: not a readable .npz archive ({exc})") from None
+    if not isinstance(npz, np.lib.npyio.NpzFile):
+        raise MapFileError(path, "not a map file: a single .npy array, expected an .npz archive")
+    with npz:
+        if "meta" not in npz.files:
+            raise MapFileError(path, f"not a map file: no 'meta' entry (entries: {', '.join(npz.files[:8])})")
+        try:
+            meta = json.loads(bytes(np.asarray(npz["meta"], dtype=np.uint8)).decode("utf-8"))
+        except (zipfile.BadZipFile, zlib.error, EOFError, OSError, ValueError, TypeError) as exc:
+            raise MapFileError(path, f"truncated or corrupted: cannot read the metadata ({exc})") from None
+        if not isinstance(meta, dict) or meta.get("format") != MAP_FORMAT:
+            got = meta.get("format") if isinstance(meta, dict) else type(meta).__name__
+            raise MapFileError(path, f"not a map file: format {got!r}, expected {MAP_FORMAT!r}")
+        version = meta.get("format_version")
+        if version != MAP_FORMAT_VERSION:
+            raise MapFileError(
+                path, f"map format version {version!r}, this program reads version {MAP_FORMAT_VERSION}; rebuild "
+                "the map with `reloc map build`"
+            )
+        try:
+            arrays = {name: npz[name] for name in npz.files if name != "meta"}
+        except (zipfile.BadZipFile, zlib.error, EOFError, OSError, ValueError) as exc:
+            raise MapFileError(path, f"truncated or corrupted: cannot read its arrays ({exc})") from None
+    try:
+        planes = PlaneSet.from_arrays(arrays, _PREFIX, frame="map")
+        observations = arrays["observations"]
+        plane_map = PlaneMap(planes, observations, meta)
+    except KeyError as exc:
+        raise MapFileError(path, f"corrupted: missing array {exc}") from None
+    except ValueError as exc:
+        raise MapFileError(path, f"corrupted: inconsistent arrays ({exc})") from None
+    if meta.get("plane_count") != len(plane_map):
+        raise MapFileError(path, f"corrupted: metadata says {meta.get('plane_count')} planes, arrays hold "
+                                 f"{len(plane_map)}")
+    if not (np.all(np.isfinite(planes.normals)) and np.all(np.isfinite(planes.offsets))
+            and np.all(np.isfinite(planes.sample_points))):
+        raise MapFileError(path, "corrupted: non-finite plane parameters or samples")
+    norms = np.linalg.norm(planes.normals, axis=1)
+    if len(norms) and np.abs(norms - 1).max() > 1e-6:
+        raise MapFileError(path, f"corrupted: plane normals are not unit (max |n| - 1 = {np.abs(norms - 1).max():.3g})")
+    return plane_map

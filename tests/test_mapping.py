@@ -1,0 +1,170 @@
+"""Plane maps: fusion against the simulator's ground truth, submaps, and the map file (round trip and errors)."""
+
+from __future__ import annotations
+
+import json
+import math
+import zipfile
+
+import numpy as np
+import pytest
+
+import sim
+from reloc.evaluation.synthetic import furnished_room, look_at, view_planes
+from reloc.mapping import (
+    MapBuilder,
+    MapFileError,
+    MappingParams,
+    PlaneMap,
+    build_map,
+    build_submap,
+    load_map,
+    oracle_source,
+    plane_fit_from_stats,
+    save_map,
+    select_keyframes,
+)
+from reloc.mapping.plane_map import MAP_FORMAT_VERSION
+from reloc.planes import plane_errors
+from sim.scenes import make_scene
+
+
+@pytest.fixture(scope="module")
+def living_map():
+    scene = make_scene("living_room")
+    frames = sim.simulate_frames(scene, "handheld", 240, noise="none", camera="kinect", seed=3, width=96, height=72)
+    return scene, build_map(frames, oracle_source(scene), MappingParams(), meta={"source": "test"})
+
+
+def test_plane_fit_from_stats_recovers_a_plane():
+    rng = np.random.default_rng(0)
+    n = np.array([0.3, -0.4, 0.866])
+    n /= np.linalg.norm(n)
+    u = np.cross(n, [1, 0, 0])
+    u /= np.linalg.norm(u)
+    v = np.cross(n, u)
+    pts = 2.0 * n + rng.uniform(-1, 1, (500, 1)) * u + rng.uniform(-1, 1, (500, 1)) * v
+    pts += rng.normal(0, 0.002, (500, 1)) * n
+    normals, offsets, cents, covs = plane_fit_from_stats(pts.sum(0)[None], (pts.T @ pts)[None], np.array([500]), n[None])
+    ang, off = plane_errors(np.r_[normals[0], offsets[0]], np.r_[n, -2.0])
+    assert ang < 0.1 and off < 0.001
+    # The covariance is symmetric, positive semi-definite, and small for 500 points at 2 mm noise.
+    assert np.allclose(covs[0], covs[0].T) and np.linalg.eigvalsh(covs[0]).min() > -1e-12
+    assert np.sqrt(covs[0][3, 3]) < 1e-3
+
+
+def test_keyframes_by_motion():
+    T = np.tile(np.eye(4), (10, 1, 1))
+    T[:, 0, 3] = np.arange(10) * 0.08  # 8 cm per frame
+    assert select_keyframes(T, 0.2, math.radians(10)).tolist() == [0, 3, 6, 9]
+
+
+def test_map_planes_match_the_scene(living_map):
+    scene, pm = living_map
+    assert pm.planes.frame == "map" and np.allclose(pm.gravity, [0, 0, -1])
+    assert pm.meta["keyframe_count"] >= 10 and pm.meta["frame_count"] == 240
+    # Every map plane lies on a scene plane (exact oracle input), and no two map planes are one surface that
+    # touches itself: each scene plane id appears as one map plane per connected piece, so at most a few.
+    errors = []
+    for n, d in zip(pm.planes.normals, pm.planes.offsets):
+        cand = [plane_errors(np.r_[n, d], np.r_[sn, sd]) for sn, sd in zip(scene.normals, scene.offsets)]
+        errors.append(min(cand, key=lambda e: e[0] + 100 * e[1]))
+    errors = np.array(errors)
+    assert errors[:, 0].max() < 0.05 and errors[:, 1].max() < 0.002
+    assert len(pm) >= 15
+
+
+def test_fusion_makes_one_plane_per_surface():
+    # The same wall seen from three poses, each seeing a different, overlapping part of it.
+    rects = furnished_room("living")
+    builder = MapBuilder(MappingParams())
+    for x in (1.5, 3.0, 4.5):
+        T = look_at((x, 3.0, 1.3), (x, 0.0, 1.0))
+        builder.add(view_planes(rects, T, hfov_deg=40), T)
+    pm = builder.finish()
+    wall = np.flatnonzero((pm.planes.normals @ [0, 1, 0] > 0.99) & (np.abs(pm.planes.offsets) < 0.01))
+    assert len(wall) == 1
+    i = wall[0]
+    assert pm.observations[i] == 3
+    xs = pm.planes.samples_of(i)[:, 0]
+    assert xs.min() < 0.9 and xs.max() > 5.1  # the union of the three views
+
+
+def test_submap_window_is_in_the_latest_camera_frame():
+    rects = furnished_room("office")
+    Ts = [look_at((1.0 + 0.3 * k, 2.5, 1.3), (4.0, 4.0 - 0.5 * k, 0.7)) for k in range(4)]
+    sets = [view_planes(rects, T) for T in Ts]
+    sub = build_submap(sets, Ts)
+    single = build_submap(sets[-1:])
+    assert sub.frame == "cam" and len(sub) >= len(single)
+    np.testing.assert_allclose(sub.gravity, sets[-1].gravity)
+    # Each fused plane, moved to the world with the latest pose, is a scene plane.
+    world = sub.transformed(Ts[-1], "map")
+    for n, d in zip(world.normals, world.offsets):
+        best = min(plane_errors(np.r_[n, d], np.r_[np.array(r.normal), -np.dot(r.normal, r.center)]) for r in rects
+                   if np.dot(r.normal, n) > 0.9)
+        assert best[0] < 0.05 and best[1] < 0.002
+    with pytest.raises(ValueError, match="T_odom_cams"):
+        build_submap(sets, Ts[:2])
+
+
+def test_map_round_trip(tmp_path, living_map):
+    _, pm = living_map
+    path = save_map(tmp_path / "m.npz", pm)
+    back = load_map(path)
+    assert len(back) == len(pm) and back.meta["format_version"] == MAP_FORMAT_VERSION
+    assert back.meta["source"] == "test" and back.meta["plane_count"] == len(pm)
+    for name, a in pm.planes.to_arrays().items():
+        np.testing.assert_array_equal(back.planes.to_arrays()[name], a)
+    np.testing.assert_array_equal(back.observations, pm.observations)
+
+
+def _rewrite(src, dst, change):
+    with zipfile.ZipFile(src) as zin, zipfile.ZipFile(dst, "w") as zout:
+        for item in zin.infolist():
+            data = change(item.filename, zin.read(item.filename))
+            if data is not None:
+                zout.writestr(item, data)
+
+
+def test_corrupted_map_files_raise_the_named_error(tmp_path, living_map):
+    _, pm = living_map
+    good = save_map(tmp_path / "good.npz", pm)
+    raw = good.read_bytes()
+
+    truncated = tmp_path / "truncated.npz"
+    truncated.write_bytes(raw[: len(raw) // 2])
+    garbage = tmp_path / "garbage.npz"
+    garbage.write_bytes(b"this is not a map" * 10)
+    other = tmp_path / "other.npz"
+    np.savez(other, a=np.zeros(3))
+
+    no_meta = tmp_path / "no_meta.npz"
+    _rewrite(good, no_meta, lambda name, data: None if name == "meta.npy" else data)
+    old = tmp_path / "old.npz"
+    meta = dict(pm.meta, format="voxelplane-reloc-map", format_version=MAP_FORMAT_VERSION + 1, plane_count=len(pm))
+    arrays = pm.planes.to_arrays("plane_")
+    arrays["observations"] = pm.observations
+    arrays["meta"] = np.frombuffer(json.dumps(meta).encode(), np.uint8)
+    np.savez(old, **arrays)
+
+    cases = {
+        truncated: "not a map file|truncated",
+        garbage: "not a map file",
+        other: "no 'meta' entry",
+        no_meta: "no 'meta' entry",
+        old: f"version {MAP_FORMAT_VERSION + 1}",
+        tmp_path / "missing.npz": "no such file",
+    }
+    for path, pattern in cases.items():
+        with pytest.raises(MapFileError, match=pattern) as info:
+            load_map(path)
+        assert str(path) in str(info.value)
+
+
+def test_plane_map_validates_its_inputs(living_map):
+    _, pm = living_map
+    with pytest.raises(ValueError, match="observations"):
+        PlaneMap(pm.planes, pm.observations[:-1])
+    with pytest.raises(ValueError, match="frame 'map'"):
+        PlaneMap(pm.planes.transformed(np.eye(4), "cam"), pm.observations)
