@@ -117,6 +117,13 @@ def test_submap_window_moves_every_frame_into_the_newest_camera():
     # A frame without odometry restarts the window.
     window.push(visible_planes(frames[0], src.scene), None, 99)
     assert window.seqs == [99] and len(window.build()) == sizes[0]
+    # A fusing function (e.g. reloc.mapping.build_submap) gets the window's plane sets and poses, oldest first.
+    calls = []
+    fused = SubmapWindow(2, fuse=lambda sets, poses: calls.append((sets, poses)) or sets[-1])
+    for f in frames:
+        fused.push(visible_planes(f, src.scene), f.T_world_cam, f.seq)
+    assert fused.build() is calls[0][0][-1] and len(calls[0][0]) == 2
+    assert np.array_equal(calls[0][1][0], frames[1].T_world_cam) and np.array_equal(calls[0][1][1], frames[2].T_world_cam)
 
 
 def test_explained_fraction_separates_right_and_wrong_poses(living_room_map):

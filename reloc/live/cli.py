@@ -42,7 +42,14 @@ def run(camera, map_spec, serial_url, frames, duration_s, summary_path, config_p
 
     from reloc.atomic import atomic_write_text
     from reloc.config import load_config
-    from reloc.live.factory import load_plane_map, make_bridge, make_extractor, make_relocalizer, open_camera
+    from reloc.live.factory import (
+        load_plane_map,
+        make_bridge,
+        make_extractor,
+        make_relocalizer,
+        make_submap_fuser,
+        open_camera,
+    )
     from reloc.live.loop import LiveLoop
     from reloc.live.params import LiveParams
     from reloc.profiling import Profiler
@@ -67,7 +74,8 @@ def run(camera, map_spec, serial_url, frames, duration_s, summary_path, config_p
         profiler = Profiler(trace_capacity=200_000 if trace_path else 0)
         loop = LiveLoop(source, extract, relocalizer, params=LiveParams.from_config(cfg), map_planes=map_planes,
                         bridge=bridge, odometry=odometry, profiler=profiler, on_status=echo,
-                        keyboard=not quiet and sys.stdin is not None and sys.stdin.isatty())
+                        keyboard=not quiet and sys.stdin is not None and sys.stdin.isatty(),
+                        fuse_submap=make_submap_fuser(cfg))
 
         def on_signal(signum, _frame):
             echo(f"signal {signal.Signals(signum).name}: stopping")

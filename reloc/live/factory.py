@@ -15,7 +15,8 @@ import numpy as np
 from reloc.camera import DepthFrame
 from reloc.planeset import PlaneSet
 
-__all__ = ["open_camera", "make_extractor", "load_plane_map", "make_relocalizer", "make_bridge", "TruthPlanes"]
+__all__ = ["open_camera", "make_extractor", "load_plane_map", "make_relocalizer", "make_submap_fuser", "make_bridge",
+           "TruthPlanes"]
 
 
 def open_camera(spec: str, cfg, *, rate: "str | float | None" = None, n_frames: int | None = None, **kwargs):
@@ -118,6 +119,17 @@ def make_relocalizer(plane_map, cfg):
     from reloc.matching import MatchingParams, Relocalizer
 
     return Relocalizer(plane_map, MatchingParams.from_config(cfg))
+
+
+def make_submap_fuser(cfg):
+    """``fuse(plane_sets, T_odom_cams)`` from :func:`reloc.mapping.build_submap` with the config's mapping
+    parameters, or None (planes of a window stacked unfused) when the mapping module is not in this build."""
+    try:
+        from reloc.mapping import MappingParams, build_submap
+    except ImportError:
+        return None
+    params = MappingParams.from_config(cfg)
+    return lambda plane_sets, T_odom_cams: build_submap(plane_sets, T_odom_cams, params)
 
 
 def make_bridge(url: str, cfg, **overrides):

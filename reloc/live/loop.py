@@ -218,12 +218,15 @@ class LiveLoop:
         Read stdin when it is a terminal: Enter relocalizes, ``q`` Enter stops.
     clock_ns:
         Host clock of capture stamps (the bridge's clock must be the same).
+    fuse_submap:
+        ``fuse(plane_sets, T_odom_cams) -> PlaneSet`` fusing a window's planes (see :class:`SubmapWindow`); None
+        stacks them.
     """
 
     def __init__(self, source, extract: Callable[[DepthFrame], Any], relocalizer, *, params: LiveParams | None = None,
                  map_planes: PlaneSet | None = None, bridge=None, odometry: str = "auto",
                  profiler: Profiler | None = None, on_status: Callable[[str], None] | None = None,
-                 keyboard: bool = False, clock_ns: Callable[[], int] = time.monotonic_ns):
+                 keyboard: bool = False, clock_ns: Callable[[], int] = time.monotonic_ns, fuse_submap=None):
         if odometry not in ("auto", "bridge", "source", "none"):
             raise ValueError(f"odometry: expected 'auto', 'bridge', 'source' or 'none', got {odometry!r}")
         if not hasattr(relocalizer, "locate"):
@@ -246,7 +249,7 @@ class LiveLoop:
 
         self._queue = DropOldestQueue(self.params.queue_frames)
         self._mailbox = _Mailbox()
-        self._window = SubmapWindow(self.params.window_frames)
+        self._window = SubmapWindow(self.params.window_frames, fuse=fuse_submap)
         self._outbox: queue.Queue = queue.Queue(maxsize=64)
         self._stop = threading.Event()  # stop everything now (Ctrl-C, duration, stop())
         self._processing_done = threading.Event()

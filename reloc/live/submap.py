@@ -34,16 +34,20 @@ class SubmapWindow:
     """The planes of the last ``window_frames`` frames with their odometry poses ``T_odom_cam``.
 
     ``build()`` moves every frame's planes into the newest camera frame (``T_cam_new_cam_i = inv(T_odom_cam_new) @
-    T_odom_cam_i``) and stacks them, so the submap is expressed where the relocalized pose will hold. A frame
-    without odometry restarts the window (its planes cannot be related to the others), as does :meth:`reset`
-    (after an odometry jump or reset). Planes seen in several frames stay separate rows: the matcher's verification
-    counts area, and duplicates of one surface agree with each other.
+    T_odom_cam_i``), so the submap is expressed where the relocalized pose will hold. A frame without odometry
+    restarts the window (its planes cannot be related to the others), as does :meth:`reset` (after an odometry jump
+    or reset). With ``fuse`` (``fuse(plane_sets, T_odom_cams) -> PlaneSet``, e.g. :func:`reloc.mapping.build_submap`)
+    planes seen in several frames are fused into one; without it they are stacked as separate rows (the matcher's
+    verification counts area, and duplicates of one surface agree with each other).
     """
 
-    def __init__(self, window_frames: int = 1):
+    def __init__(self, window_frames: int = 1, fuse=None):
         if not isinstance(window_frames, int) or window_frames < 1:
             raise ValueError(f"window_frames: expected a positive integer, got {window_frames!r}")
+        if fuse is not None and not callable(fuse):
+            raise ValueError(f"fuse: expected a callable (plane_sets, T_odom_cams) -> PlaneSet, got {fuse!r}")
         self.window_frames = window_frames
+        self.fuse = fuse
         self._items: deque[tuple[PlaneSet, np.ndarray | None, int]] = deque(maxlen=window_frames)
 
     def push(self, planes_cam: PlaneSet, T_odom_cam: np.ndarray | None, seq: int) -> None:
@@ -69,6 +73,8 @@ class SubmapWindow:
         newest, T_new, _ = self._items[-1]
         if len(self._items) == 1:
             return newest
+        if self.fuse is not None:
+            return self.fuse([p for p, _, _ in self._items], [T for _, T, _ in self._items])
         T_new_odom = invert(T_new)
         moved = [p if i == len(self._items) - 1 else p.transformed(T_new_odom @ T, "cam")
                  for i, (p, T, _) in enumerate(self._items)]
