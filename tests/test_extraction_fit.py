@@ -161,6 +161,7 @@ def test_params_from_config_and_validation():
     from reloc.config import Config, config_from_dict
 
     p = ExtractionParams.from_config(Config())
+    assert p == ExtractionParams()  # the defaults of the config and of the parameters are the same
     assert p.grow_max_angle_rad == pytest.approx(np.radians(10.0))
     assert p.voxel_size_m == Config().extraction.voxel_size_m
     cfg = config_from_dict({"merging": {"enabled": False}, "camera": {"gravity_source": "imu"}})

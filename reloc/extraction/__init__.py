@@ -1,9 +1,29 @@
 """Plane extraction: a depth frame (or a point cloud) becomes a :class:`~reloc.planeset.PlaneSet`.
 
-Public API: :class:`ExtractionParams` and the robust single-plane fit :func:`fit_plane`.
+Data flow (one module per stage, numba kernels in the ``_kernels_*`` modules):
+``backproject`` (depth to points) -> ``voxelize`` (counting sort into voxels, per-voxel moments) ->
+``voxel_planes`` (PCA plane and planarity per voxel, then the weighted refit of Eq. 2-3) -> ``merge`` (voxel growth
+and under-grown fragments) -> ``assemble`` (supporting points, radius, area, samples, labels) ; ``pipeline``
+composes and times them. ``fit`` is the same robust weighted fit for one arbitrary point set.
 """
 
 from reloc.extraction.fit import fit_plane
 from reloc.extraction.params import ExtractionParams, noise_sigma
+from reloc.extraction.pipeline import (
+    STAGES,
+    ExtractionResult,
+    PlaneExtractor,
+    extract_planes,
+    extract_planes_from_points,
+)
 
-__all__ = ["ExtractionParams", "fit_plane", "noise_sigma"]
+__all__ = [
+    "ExtractionParams",
+    "ExtractionResult",
+    "PlaneExtractor",
+    "STAGES",
+    "extract_planes",
+    "extract_planes_from_points",
+    "fit_plane",
+    "noise_sigma",
+]

@@ -1,13 +1,16 @@
 """Numba kernels: robust weighted plane fit of one point set (RANSAC start, then IRLS with per-point sigmas).
 
+Points are relative to the sensor (the sensor at the origin, z its viewing direction); callers shift them.
 Per-point sigma of the distance to the plane, from the depth noise law ``sigma_z = coeff * z**power``:
-- ``ray_mode`` false: ``sigma_i = sigma_z(z_i)`` (noise along the normal, the paper's synthetic protocol);
-- ``ray_mode`` true: depth noise moves the point along its viewing ray ``q = p - origin``, and the distance to the
-  plane moves by ``sigma_z(z_i) |n . q| / q_z`` (bounded below by ``MIN_INCIDENCE`` sigma_z at grazing angles).
+- ``ray_mode`` false: ``sigma_i = sigma_z(z_i)`` (noise along the normal, the paper's synthetic protocol); planes are
+  solved by weighted total least squares with ``noise_i = 1 / sigma_i^2``;
+- ``ray_mode`` true: depth noise moves the point along its viewing ray, and the distance to the plane moves by
+  ``sigma_z(z_i) |n . p| / z`` (bounded below by ``MIN_INCIDENCE`` sigma_z at grazing angles); planes are solved in
+  the ray form ``a . p = 1`` with ``noise_i = z_i^2 / sigma_z(z_i)^2`` (see ``_kernels_linalg``).
 
-Weights of one IRLS pass: ``w_i = pos_i * noise_i * tukey(u_i / (c s))`` with ``u_i = r_i / sigma_i``, ``s`` the
-robust (MAD) scale of the ``u_i`` (1 when the noise law is exact), ``pos_i`` the paper's Eq. 2 position weight and
-``noise_i = 1 / sigma_i^2``; each factor can be switched off.
+Weights of one IRLS pass: ``w_i = pos_i * noise_i * tukey(u_i / (c s))`` with ``u_i = r_i / sigma_i`` (the depth
+error over sigma_z in ray mode), ``s`` the robust (MAD) scale of the ``u_i`` (1 when the noise law is exact),
+``pos_i`` the paper's Eq. 2 position weight; each factor can be switched off.
 """
 
 from __future__ import annotations
@@ -17,7 +20,7 @@ import math
 import numpy as np
 
 from reloc._numba import njit, register_warmup
-from reloc.extraction._kernels_linalg import plane_covariance, plane_from_moments
+from reloc.extraction._kernels_linalg import plane_covariance, plane_covariance_ray, solve_plane
 
 MIN_INCIDENCE = 0.05
 MIN_DEPTH = 1e-3
@@ -45,6 +48,15 @@ def distance_sigma(qx, qy, qz, nx, ny, nz, sig_z, ray_mode):
 
 
 @njit
+def noise_weight(z, sig_z, sig_dist, ray_mode):
+    """Inverse-variance weight of a point for the plane solver of the mode (module docstring)."""
+    if ray_mode:
+        z = max(abs(z), MIN_DEPTH)
+        return z * z / (sig_z * sig_z)
+    return 1.0 / (sig_dist * sig_dist)
+
+
+@njit
 def position_weight(rho, alpha, beta):
     """Paper Eq. 2 with ``rho = r / r_max``: ``1 - alpha rho^2`` for ``rho <= 1/2``, ``exp(-beta rho^2)`` beyond."""
     if rho <= 0.5:
@@ -63,7 +75,7 @@ def tukey_weight(u, c):
 
 
 @njit
-def _hypothesis_cost(pts, sig_z, origin, sub, nx, ny, nz, d, ray_mode, trunc):
+def _hypothesis_cost(pts, sig_z, sub, nx, ny, nz, d, ray_mode, trunc):
     cost = 0.0
     for k in range(sub.shape[0]):
         i = sub[k]
@@ -71,7 +83,7 @@ def _hypothesis_cost(pts, sig_z, origin, sub, nx, ny, nz, d, ray_mode, trunc):
         py = pts[i, 1]
         pz = pts[i, 2]
         r = nx * px + ny * py + nz * pz + d
-        sg = distance_sigma(px - origin[0], py - origin[1], pz - origin[2], nx, ny, nz, sig_z[i], ray_mode)
+        sg = distance_sigma(px, py, pz, nx, ny, nz, sig_z[i], ray_mode)
         u = r / sg
         u2 = u * u
         cost += u2 if u2 < trunc * trunc else trunc * trunc
@@ -79,7 +91,7 @@ def _hypothesis_cost(pts, sig_z, origin, sub, nx, ny, nz, d, ray_mode, trunc):
 
 
 @njit
-def ransac_start(pts, sig_z, origin, n_hyp, n_sub, trunc, seed, ray_mode):
+def ransac_start(pts, sig_z, n_hyp, n_sub, trunc, seed, ray_mode):
     """Best of ``n_hyp`` three-point planes by the truncated cost ``sum min(u^2, trunc^2)`` on ``n_sub`` points.
 
     ``pts`` (N, 3) float64, ``sig_z`` (N,) depth sigmas. Returns ``(nx, ny, nz, d, found)``.
@@ -121,7 +133,7 @@ def ransac_start(pts, sig_z, origin, n_hyp, n_sub, trunc, seed, ray_mode):
         ny *= inv
         nz *= inv
         d = -(nx * pts[i, 0] + ny * pts[i, 1] + nz * pts[i, 2])
-        cost = _hypothesis_cost(pts, sig_z, origin, sub, nx, ny, nz, d, ray_mode, trunc)
+        cost = _hypothesis_cost(pts, sig_z, sub, nx, ny, nz, d, ray_mode, trunc)
         if cost < best:
             best = cost
             bx, by, bz, bd = nx, ny, nz, d
@@ -158,12 +170,13 @@ def _inlier_sphere(pts, u_abs, lim):
 
 
 @njit
-def robust_fit_points(pts, origin, power, coeff, ray_mode, use_noise, use_position, alpha, beta, use_robust,
-                      kernel_c, n_hyp, seed, max_iter, out_plane, out_cov):
-    """Robust weighted plane of ``pts`` (N, 3) float64; writes ``out_plane`` (4,) and ``out_cov`` (4, 4).
+def robust_fit_points(pts, power, coeff, ray_mode, use_noise, use_position, alpha, beta, use_robust, kernel_c, n_hyp,
+                      seed, max_iter, out_plane, out_cov):
+    """Robust weighted plane of ``pts`` (N, 3) float64 (sensor at the origin); writes ``out_plane`` (4,) and
+    ``out_cov`` (4, 4).
 
-    Start: the best RANSAC hypothesis (``n_hyp > 0``) or the noise-weighted PCA plane. Then IRLS until the plane
-    moves by less than 1e-12 or ``max_iter`` passes. The normal is oriented toward ``origin``.
+    Start: the best RANSAC hypothesis (``n_hyp > 0``) or the noise-weighted fit of all points. Then IRLS until the
+    plane moves by less than 1e-12 or ``max_iter`` passes. The normal is oriented toward the origin.
     Returns ``(iterations, n_inliers, scale)``; ``n_inliers`` counts points with a non-zero final weight.
     """
     n = pts.shape[0]
@@ -176,20 +189,19 @@ def robust_fit_points(pts, origin, power, coeff, ray_mode, use_noise, use_positi
     sig_z = np.empty(n)
     u_abs = np.zeros(n)
     for i in range(n):
-        sig_z[i] = point_sigma(pts[i, 2] - origin[2], power, coeff)
+        sig_z[i] = point_sigma(pts[i, 2], power, coeff)
         for j in range(3):
             ref[j] += pts[i, j] / n
-    # Start.
+    found = False
+    nx, ny, nz, d = 0.0, 0.0, 1.0, 0.0
     if n_hyp > 0:
-        nx, ny, nz, d, found = ransac_start(pts, sig_z, origin, n_hyp, 2000, 3.0, seed, ray_mode)
-    else:
-        found = False
+        nx, ny, nz, d, found = ransac_start(pts, sig_z, n_hyp, 2000, 3.0, seed, ray_mode)
     if not found:
         W = 0.0
         s[:] = 0.0
         S[:, :] = 0.0
         for i in range(n):
-            wi = 1.0 / (sig_z[i] * sig_z[i]) if use_noise else 1.0
+            wi = noise_weight(pts[i, 2], sig_z[i], sig_z[i], ray_mode) if use_noise else 1.0
             qx = pts[i, 0] - ref[0]
             qy = pts[i, 1] - ref[1]
             qz = pts[i, 2] - ref[2]
@@ -206,7 +218,7 @@ def robust_fit_points(pts, origin, power, coeff, ray_mode, use_noise, use_positi
         S[1, 0] = S[0, 1]
         S[2, 0] = S[0, 2]
         S[2, 1] = S[1, 2]
-        nx, ny, nz, d, _l0, _l1, _l2 = plane_from_moments(W, s, S, ref, A, w3, V)
+        nx, ny, nz, d, _l0, _l1, _l2 = solve_plane(W, s, S, ref, ray_mode, A, w3, V)
     # Position weights (Eq. 2): centre and r_max of the current inliers, updated every pass so that the converged
     # plane does not depend on the start.
     cx, cy, cz = ref[0], ref[1], ref[2]
@@ -220,8 +232,7 @@ def robust_fit_points(pts, origin, power, coeff, ray_mode, use_noise, use_positi
         # Robust scale of the sigma-normalised residuals (MAD).
         if use_robust:
             for i in range(n):
-                sg = distance_sigma(pts[i, 0] - origin[0], pts[i, 1] - origin[1], pts[i, 2] - origin[2],
-                                    nx, ny, nz, sig_z[i], ray_mode)
+                sg = distance_sigma(pts[i, 0], pts[i, 1], pts[i, 2], nx, ny, nz, sig_z[i], ray_mode)
                 u_abs[i] = abs((nx * pts[i, 0] + ny * pts[i, 1] + nz * pts[i, 2] + d) / sg)
             scale = max(1.4826 * np.median(u_abs), 1e-9)
         if use_position:
@@ -234,10 +245,10 @@ def robust_fit_points(pts, origin, power, coeff, ray_mode, use_noise, use_positi
             px = pts[i, 0]
             py = pts[i, 1]
             pz = pts[i, 2]
-            sg = distance_sigma(px - origin[0], py - origin[1], pz - origin[2], nx, ny, nz, sig_z[i], ray_mode)
+            sg = distance_sigma(px, py, pz, nx, ny, nz, sig_z[i], ray_mode)
             wi = 1.0
             if use_noise:
-                wi = 1.0 / (sg * sg)
+                wi = noise_weight(pz, sig_z[i], sg, ray_mode)
             if use_robust:
                 u = (nx * px + ny * py + nz * pz + d) / sg
                 wi *= tukey_weight(u, kernel_c * scale)
@@ -267,23 +278,26 @@ def robust_fit_points(pts, origin, power, coeff, ray_mode, use_noise, use_positi
         S[1, 0] = S[0, 1]
         S[2, 0] = S[0, 2]
         S[2, 1] = S[1, 2]
-        mx, my, mz, md, _l0, _l1, _l2 = plane_from_moments(W, s, S, ref, A, w3, V)
+        mx, my, mz, md, _l0, _l1, _l2 = solve_plane(W, s, S, ref, ray_mode, A, w3, V)
         if mx * nx + my * ny + mz * nz < 0.0:
             mx, my, mz, md = -mx, -my, -mz, -md
         change = abs(mx - nx) + abs(my - ny) + abs(mz - nz) + abs(md - d)
         nx, ny, nz, d = mx, my, mz, md
-        if not use_robust and not (use_noise and ray_mode):
+        if not use_robust:
             break  # the weights do not depend on the plane: one pass is the solution
         if change < 1e-12:
             break
-    if nx * origin[0] + ny * origin[1] + nz * origin[2] + d < 0.0:
+    if d < 0.0:
         nx, ny, nz, d = -nx, -ny, -nz, -d
     out_plane[0] = nx
     out_plane[1] = ny
     out_plane[2] = nz
     out_plane[3] = d
     if n_in >= 3:
-        plane_covariance(nx, ny, nz, d, W, s, S, ref, float(n_in), out_cov)
+        if ray_mode:
+            plane_covariance_ray(nx, ny, nz, d, W, s, S, ref, float(n_in), out_cov)
+        else:
+            plane_covariance(nx, ny, nz, d, W, s, S, ref, float(n_in), out_cov)
     else:
         out_cov[:, :] = 0.0
     return iters, n_in, scale
@@ -295,4 +309,5 @@ def _warmup() -> None:
     pts = np.column_stack([rng.uniform(-1, 1, 50), rng.uniform(-1, 1, 50), 2.0 + 0.001 * rng.normal(size=50)])
     plane = np.zeros(4)
     cov = np.zeros((4, 4))
-    robust_fit_points(pts, np.zeros(3), 2, 1.425e-3, True, True, True, 0.5, 2.0, True, 3.0, 16, 0, 5, plane, cov)
+    for ray in (True, False):
+        robust_fit_points(pts, 2, 1.425e-3, ray, True, True, 0.5, 2.0, True, 3.0, 16, 0, 5, plane, cov)

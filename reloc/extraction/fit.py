@@ -63,9 +63,17 @@ def fit_plane(
         raise ValueError(f"max_iterations: expected an integer >= 1, got {max_iterations!r}")
     plane = np.zeros(4)
     cov = np.zeros((4, 4))
+    # The kernels work with the sensor at the origin.
     kf.robust_fit_points(
-        pts, origin, p.noise_power, float(p.noise_coeff), p.noise_direction == "ray", bool(p.noise_weights),
-        bool(p.adaptive_weights), float(p.alpha), float(p.beta), p.irls_iterations > 0,
+        np.ascontiguousarray(pts - origin), p.noise_power, float(p.noise_coeff), p.noise_direction == "ray",
+        bool(p.noise_weights), bool(p.adaptive_weights), float(p.alpha), float(p.beta), p.irls_iterations > 0,
         float(p.irls_kernel_sigmas), int(p.ransac_hypotheses), int(p.seed), int(max_iterations), plane, cov,
     )
-    return plane[:3].copy(), float(plane[3]), cov
+    normal = plane[:3].copy()
+    # Back to the input frame: n . (p - o) + d_o = 0  ->  d = d_o - n . o; (n, d) = J (n, d_o), J = [[I, 0], [-o^T, 1]].
+    d = float(plane[3] - normal @ origin)
+    if np.any(origin != 0.0):
+        J = np.eye(4)
+        J[3, :3] = -origin
+        cov = J @ cov @ J.T
+    return normal, d, cov

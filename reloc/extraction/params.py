@@ -38,7 +38,9 @@ class ExtractionParams:
     Depth to points: ``min_depth_m``, ``max_depth_m``, ``pixel_stride``.
     Voxels and planarity: ``voxel_size_m``, ``min_points_per_voxel``; a voxel holds a plane when the RMS distance of
     its points to their PCA plane is below ``max(max_thickness_sigmas * sigma(z), max_thickness_floor_m)`` and the
-    smallest / middle eigenvalue ratio is below ``max_eigen_ratio``.
+    smallest / middle eigenvalue ratio, after the noise variance is taken off the smallest, is below
+    ``max_eigen_ratio``, and the normal's angular standard deviation ``sqrt(l0 / (n l1))`` is below
+    ``max_normal_std_rad``.
     Weighted refit (paper Eq. 2-3 and beyond), each ingredient switchable:
     - ``adaptive_weights``: the paper's position weight ``1 - alpha rho^2`` for ``rho <= 1/2``, ``exp(-beta rho^2)``
       beyond, with ``rho`` the distance to the plane centre over the largest such distance (off = VR-NE).
@@ -47,19 +49,26 @@ class ExtractionParams:
       plane varies by ``sigma_z |n . ray| / ray_z`` (incidence taken into account); with ``"normal"`` the noise is
       taken along the plane normal (``sigma_z`` itself), as in the paper's synthetic Table 2 protocol.
     - ``irls_iterations`` passes of residual-based reweighting with Tukey's biweight of width
-      ``irls_kernel_sigmas`` in units of the (robustly rescaled) per-point sigma.
+      ``irls_kernel_sigmas`` in units of the (robustly rescaled) per-point sigma. Voxels with more than
+      ``voxel_fit_max_points`` points are refit from an even subsample (their plane only steers the merging; the
+      merged planes are refined from all points). With the robust weight the planarity test is made again on
+      the refit's inliers, which must be at least ``min_inlier_fraction`` of the voxel's points.
     Single point sets (:func:`fit_plane`): ``ransac_hypotheses`` three-point hypotheses scored by a truncated
     sigma-normalised cost give the robust start of the IRLS (0 = start from the noise-weighted PCA); ``seed`` makes
     it repeatable.
     Merging: ``merge`` (off = VR-NM); growth over the 26-neighbourhood accepts a neighbour voxel whose normal is
-    within ``grow_max_angle_rad`` of the growing plane and whose centroid lies within
-    ``max(grow_max_offset_m, grow_offset_sigmas * sigma(z))`` of it. Under-grown fragments merge when their normals
+    within ``max(grow_max_angle_rad, atan(grow_angle_noise_sigmas * sigma(z) / spread))`` of the growing plane,
+    whose centroid lies within ``max(grow_max_offset_m, grow_offset_sigmas * sigma(z))`` of it and whose
+    points lie on it within the planarity thickness. Under-grown fragments merge when their normals
     are within ``undergrown_max_angle_rad``, the centroid-to-centroid vector is within
     ``undergrown_max_depth_angle_rad`` of perpendicular to both normals (or the centroids lie within
     ``undergrown_max_offset_m`` of the other plane), and the centroids are within ``undergrown_radius_scale`` times
     the larger radius.
     Plane set: ``area_patch_m`` (l of the area count), ``sample_spacing_m``, ``inlier_sigmas`` (points of a
-    plane's voxels farther than this many sigmas are not labelled as the plane), ``min_plane_points``,
+    plane's voxels farther than this many sigmas are not labelled as the plane), ``refine_boundary`` (points of
+    neighbouring voxels join it when inside that band), ``refine_iterations`` (robust passes over the points near
+    each merged plane: refit, then fragments merge again; 0 = planes straight from the merged moments),
+    ``min_plane_points``,
     ``min_plane_area_m2``; ``gravity_fallback`` says what a frame without ``gravity_cam`` gets: the camera's +y axis
     (``"camera_y"``) or no gravity (``"none"``).
     """
@@ -72,6 +81,7 @@ class ExtractionParams:
     max_thickness_sigmas: float = 4.0
     max_thickness_floor_m: float = 0.01
     max_eigen_ratio: float = 0.05
+    max_normal_std_rad: float = math.radians(5.0)
     adaptive_weights: bool = True
     alpha: float = 0.5
     beta: float = 2.0
@@ -79,6 +89,8 @@ class ExtractionParams:
     noise_direction: str = "ray"
     irls_iterations: int = 3
     irls_kernel_sigmas: float = 3.0
+    voxel_fit_max_points: int = 256
+    min_inlier_fraction: float = 0.7
     noise_model: str = "kinect"
     noise_coeff: float = 1.425e-3
     ransac_hypotheses: int = 256
@@ -86,21 +98,26 @@ class ExtractionParams:
     merge: bool = True
     grow_max_angle_rad: float = math.radians(10.0)
     grow_max_offset_m: float = 0.04
-    grow_offset_sigmas: float = 3.0
+    grow_offset_sigmas: float = 2.0
+    grow_angle_noise_sigmas: float = 2.0
     undergrown_max_angle_rad: float = math.radians(8.0)
     undergrown_max_depth_angle_rad: float = math.radians(5.0)
     undergrown_max_offset_m: float = 0.05
-    undergrown_radius_scale: float = 1.5
+    undergrown_radius_scale: float = 2.0
     area_patch_m: float = 0.1
     sample_spacing_m: float = 0.1
     inlier_sigmas: float = 4.0
+    refine_boundary: bool = True
+    refine_iterations: int = 2
     min_plane_points: int = 200
     min_plane_area_m2: float = 0.04
     gravity_fallback: str = "camera_y"
 
     def __post_init__(self) -> None:
         positive = (
-            "max_depth_m", "voxel_size_m", "max_thickness_sigmas", "max_eigen_ratio", "irls_kernel_sigmas",
+            "max_depth_m", "voxel_size_m", "max_thickness_sigmas", "max_eigen_ratio", "max_normal_std_rad",
+            "min_inlier_fraction",
+            "irls_kernel_sigmas",
             "noise_coeff", "grow_max_angle_rad", "grow_max_offset_m", "undergrown_max_angle_rad",
             "undergrown_max_depth_angle_rad", "undergrown_max_offset_m", "undergrown_radius_scale", "area_patch_m",
             "sample_spacing_m", "inlier_sigmas",
@@ -110,6 +127,7 @@ class ExtractionParams:
             if not isinstance(v, (int, float)) or not math.isfinite(v) or v <= 0:
                 raise ValueError(f"ExtractionParams.{name}: expected a finite number > 0, got {v!r}")
         non_negative = ("min_depth_m", "max_thickness_floor_m", "alpha", "beta", "grow_offset_sigmas",
+                        "grow_angle_noise_sigmas",
                         "min_plane_area_m2")
         for name in non_negative:
             v = getattr(self, name)
@@ -120,11 +138,12 @@ class ExtractionParams:
                 f"ExtractionParams.max_depth_m: expected > min_depth_m ({self.min_depth_m}), got {self.max_depth_m}"
             )
         for name, lo in (("pixel_stride", 1), ("min_points_per_voxel", 3), ("irls_iterations", 0),
-                         ("ransac_hypotheses", 0), ("min_plane_points", 3), ("seed", 0)):
+                         ("ransac_hypotheses", 0), ("min_plane_points", 3), ("seed", 0),
+                         ("refine_iterations", 0), ("voxel_fit_max_points", 3)):
             v = getattr(self, name)
             if not isinstance(v, (int, np.integer)) or isinstance(v, bool) or v < lo:
                 raise ValueError(f"ExtractionParams.{name}: expected an integer >= {lo}, got {v!r}")
-        for name in ("adaptive_weights", "noise_weights", "merge"):
+        for name in ("adaptive_weights", "noise_weights", "merge", "refine_boundary"):
             if not isinstance(getattr(self, name), (bool, np.bool_)):
                 raise ValueError(f"ExtractionParams.{name}: expected a bool, got {getattr(self, name)!r}")
         noise_law_code(self.noise_model)
@@ -155,6 +174,9 @@ class ExtractionParams:
         known = {f.name for f in fields(cls)}
         # Extraction fields named like ours pass through; degrees become radians.
         kwargs = {name: getattr(ex, name) for name in type(ex).model_fields if name in known}
+        for name in type(ex).model_fields:
+            if name.endswith("_deg") and name[: -len("_deg")] + "_rad" in known:
+                kwargs[name[: -len("_deg")] + "_rad"] = math.radians(getattr(ex, name))
         kwargs.update(
             min_depth_m=cam.min_depth_m,
             max_depth_m=cam.max_depth_m,
@@ -165,7 +187,7 @@ class ExtractionParams:
         for name in type(mg).model_fields:
             if name == "enabled":
                 continue
-            if name.endswith("_deg"):
+            if name.endswith("_deg") and name[: -len("_deg")] + "_rad" in known:
                 kwargs[name[: -len("_deg")] + "_rad"] = math.radians(getattr(mg, name))
             elif name in known:
                 kwargs[name] = getattr(mg, name)

@@ -1,0 +1,510 @@
+"""Numba kernels: from merged planes to the plane set: supporting points, statistics, radius, area, samples, labels.
+
+In-plane coordinates of a point ``p`` of plane ``(n, d)``: ``(u, v) = (t1 . p, t2 . p)`` with ``t1, t2`` the
+tangent basis of ``n`` (``tangent_basis``); the grid cells of the area count and of the samples are
+``floor(u / l)``, ``floor(v / l)``, anchored at the foot of the origin on the plane, so they do not depend on the
+order of the points. Points are relative to the sensor (at the origin).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from reloc._numba import njit, register_warmup
+from reloc.extraction._kernels_fit import MIN_DEPTH, MIN_INCIDENCE, distance_sigma, noise_weight, point_sigma, tukey_weight
+from reloc.extraction._kernels_linalg import solve_plane, tangent_basis
+from reloc.extraction._kernels_voxel import voxel_lookup
+
+MAX_CANDIDATES = 8
+# Candidates closer than this in angle (cos 20 deg) are not treated as a corner by the refit.
+COS_CORNER = 0.94
+CORNER_BANDS = 1.5
+
+
+@njit
+def _band_u(px, py, pz, p, planes, power, coeff, ray_mode):
+    nx = planes[p, 0]
+    ny = planes[p, 1]
+    nz = planes[p, 2]
+    r = nx * px + ny * py + nz * pz + planes[p, 3]
+    sg = distance_sigma(px, py, pz, nx, ny, nz, point_sigma(pz, power, coeff), ray_mode)
+    return abs(r) / sg
+
+
+@njit
+def _candidates(v, voxel_key, box, dense, cellmap, tkeys, tvals, plane_of_voxel, neighbours, cand):
+    """Distinct planes of voxel ``v`` and (``neighbours``) of its 26 neighbours into ``cand``; returns how many."""
+    nc = 0
+    own = plane_of_voxel[v]
+    if own >= 0:
+        cand[0] = own
+        nc = 1
+    if not neighbours:
+        return nc
+    nyz = box[4] * box[5]
+    key = voxel_key[v]
+    ix = key // nyz
+    iy = (key // box[5]) % box[4]
+    iz = key % box[5]
+    for dx in range(-1, 2):
+        for dy in range(-1, 2):
+            for dz in range(-1, 2):
+                if dx == 0 and dy == 0 and dz == 0:
+                    continue
+                c = voxel_lookup(ix + dx, iy + dy, iz + dz, box, dense, cellmap, tkeys, tvals)
+                if c < 0:
+                    continue
+                q = plane_of_voxel[c]
+                if q < 0:
+                    continue
+                seen = False
+                for k in range(nc):
+                    if cand[k] == q:
+                        seen = True
+                if not seen and nc < cand.shape[0]:
+                    cand[nc] = q
+                    nc += 1
+    return nc
+
+
+@njit(fastmath={"reassoc", "contract"})
+def _single_plane_voxel(sorted_pts, a, b, q, planes, band, power, coeff, ray_mode, point_plane, accumulate,
+                        use_noise, refs, acc_w, acc_s, acc_S, acc_n, acc_sum):
+    """:func:`assign_points` for a voxel whose only candidate is plane ``q`` (most voxels): branch-free, so the
+    loop vectorises. Returns the number of points assigned."""
+    nx = planes[q, 0]
+    ny = planes[q, 1]
+    nz = planes[q, 2]
+    d = planes[q, 3]
+    bq = band[q]
+    inv_b2 = 1.0 / (bq * bq)
+    rx = refs[q, 0]
+    ry = refs[q, 1]
+    rz = refs[q, 2]
+    n_in = 0
+    W = s0 = s1 = s2 = s3 = s4 = s5 = s6 = s7 = s8 = 0.0
+    c0 = c1 = c2 = 0.0
+    for j in range(a, b):
+        px = np.float64(sorted_pts[j, 0])
+        py = np.float64(sorted_pts[j, 1])
+        pz = np.float64(sorted_pts[j, 2])
+        npd = nx * px + ny * py + nz * pz
+        r = npd + d
+        zz = max(pz, MIN_DEPTH)
+        if power == 2:
+            sz = coeff * zz * zz
+        elif power == 1:
+            sz = coeff * zz
+        else:
+            sz = coeff
+        if ray_mode:
+            g = zz / sz
+            u = abs(r) * g / max(abs(npd), MIN_INCIDENCE * zz)
+            wn = g * g
+        else:
+            u = abs(r) / sz
+            wn = 1.0 / (sz * sz)
+        inside = u <= bq
+        point_plane[j] = q if inside else -1
+        n_in += 1 if inside else 0
+        if accumulate:
+            t = max(1.0 - u * u * inv_b2, 0.0)
+            w = t * t
+            if use_noise:
+                w *= wn
+            x = px - rx
+            y = py - ry
+            z = pz - rz
+            W += w
+            s0 += w * x
+            s1 += w * y
+            s2 += w * z
+            s3 += w * x * x
+            s4 += w * x * y
+            s5 += w * x * z
+            s6 += w * y * y
+            s7 += w * y * z
+            s8 += w * z * z
+            f = 1.0 if t > 0.0 else 0.0
+            c0 += f * px
+            c1 += f * py
+            c2 += f * pz
+    if accumulate:
+        acc_w[q] += W
+        acc_s[q, 0] += s0
+        acc_s[q, 1] += s1
+        acc_s[q, 2] += s2
+        acc_S[q, 0, 0] += s3
+        acc_S[q, 0, 1] += s4
+        acc_S[q, 0, 2] += s5
+        acc_S[q, 1, 1] += s6
+        acc_S[q, 1, 2] += s7
+        acc_S[q, 2, 2] += s8
+        acc_n[q] += n_in
+        acc_sum[q, 0] += c0
+        acc_sum[q, 1] += c1
+        acc_sum[q, 2] += c2
+    return n_in
+
+
+@njit
+def assign_points(sorted_pts, voxel_start, nv, voxel_key, box, dense, cellmap, tkeys, tvals, plane_of_voxel,
+                  planes, band, power, coeff, ray_mode, refine_boundary, point_plane, accumulate, use_noise, refs,
+                  acc_w, acc_s, acc_S, acc_n, acc_sum, acc_amb):
+    """Plane of every point (sorted order) into ``point_plane`` (-1 for none); returns the number assigned.
+
+    A point supports the candidate plane it is closest to (in sigmas) when within that plane's ``band``. The
+    candidates of a voxel are its own plane and, with ``refine_boundary``, the planes of its 26 neighbours (so
+    points of corner, edge and sparse voxels, and points pushed across a voxel face by the noise, find their
+    plane). With ``accumulate``, also sums per plane the moments about ``refs[p]`` (P, 3) of its points that are
+    not near another candidate plane (see the comment in the loop) weighted by Tukey's biweight of width ``band``
+    (times the inverse-variance weight with ``use_noise``): ``acc_w`` (P,), ``acc_s`` (P, 3), ``acc_S`` (P, 3, 3),
+    with ``acc_n`` (P,) the points of non-zero weight, ``acc_sum`` (P, 3) their plain sum and ``acc_amb`` (P,) the
+    points left out as near a corner; all zeroed here.
+    """
+    cand = np.empty(MAX_CANDIDATES, np.int64)
+    n_planes = planes.shape[0]
+    if accumulate:
+        for p in range(n_planes):
+            acc_w[p] = 0.0
+            acc_n[p] = 0
+            acc_amb[p] = 0
+            for i in range(3):
+                acc_s[p, i] = 0.0
+                acc_sum[p, i] = 0.0
+                for k in range(3):
+                    acc_S[p, i, k] = 0.0
+    n_assigned = 0
+    for v in range(nv):
+        a = voxel_start[v]
+        b = voxel_start[v + 1]
+        nc = _candidates(v, voxel_key, box, dense, cellmap, tkeys, tvals, plane_of_voxel, refine_boundary, cand)
+        if nc == 0:
+            for j in range(a, b):
+                point_plane[j] = -1
+            continue
+        if nc == 1:
+            n_assigned += _single_plane_voxel(sorted_pts, a, b, cand[0], planes, band, power, coeff, ray_mode,
+                                              point_plane, accumulate, use_noise, refs, acc_w, acc_s, acc_S, acc_n,
+                                              acc_sum)
+            continue
+        for j in range(a, b):
+            px = np.float64(sorted_pts[j, 0])
+            py = np.float64(sorted_pts[j, 1])
+            pz = np.float64(sorted_pts[j, 2])
+            best = -1
+            best_u = np.inf
+            for k in range(nc):
+                q = cand[k]
+                u = _band_u(px, py, pz, q, planes, power, coeff, ray_mode)
+                if u <= band[q] and u < best_u:
+                    best_u = u
+                    best = q
+            point_plane[j] = best
+            if best < 0:
+                continue
+            n_assigned += 1
+            if not accumulate:
+                continue
+            # Near the intersection of two planes the noise decides which plane a point looks closest to, so
+            # keeping it for the nearest would cut each plane's noise one-sidedly there and tilt it. Points whose
+            # pixel ray meets another candidate plane within CORNER_BANDS bands (in depth sigmas) of this one are
+            # left out of the refit: that test uses the noise-free ray, not the noisy depth, so it truncates nothing.
+            q = best
+            nq = planes[q, 0] * px + planes[q, 1] * py + planes[q, 2] * pz
+            if nq == 0.0:
+                continue
+            sz = point_sigma(pz, power, coeff)
+            z_q = -planes[q, 3] * pz / nq
+            ambiguous = False
+            for k in range(nc):
+                o = cand[k]
+                if o == q:
+                    continue
+                # Nearly parallel candidates are pieces of one surface (fragments that merge later), not a corner.
+                if (planes[o, 0] * planes[q, 0] + planes[o, 1] * planes[q, 1] + planes[o, 2] * planes[q, 2]
+                        > COS_CORNER):
+                    continue
+                no = planes[o, 0] * px + planes[o, 1] * py + planes[o, 2] * pz
+                if no == 0.0:
+                    continue
+                z_o = -planes[o, 3] * pz / no
+                if z_o > 0.0 and abs(z_o - z_q) < CORNER_BANDS * band[q] * sz:
+                    ambiguous = True
+                    break
+            if ambiguous:
+                acc_amb[q] += 1
+                continue
+            w = tukey_weight(best_u, band[q])
+            if w <= 0.0:
+                continue
+            if use_noise:
+                sg = distance_sigma(px, py, pz, planes[q, 0], planes[q, 1], planes[q, 2], sz, ray_mode)
+                w *= noise_weight(pz, sz, sg, ray_mode)
+            qx = px - refs[q, 0]
+            qy = py - refs[q, 1]
+            qz = pz - refs[q, 2]
+            acc_w[q] += w
+            acc_n[q] += 1
+            acc_sum[q, 0] += px
+            acc_sum[q, 1] += py
+            acc_sum[q, 2] += pz
+            acc_s[q, 0] += w * qx
+            acc_s[q, 1] += w * qy
+            acc_s[q, 2] += w * qz
+            acc_S[q, 0, 0] += w * qx * qx
+            acc_S[q, 0, 1] += w * qx * qy
+            acc_S[q, 0, 2] += w * qx * qz
+            acc_S[q, 1, 1] += w * qy * qy
+            acc_S[q, 1, 2] += w * qy * qz
+            acc_S[q, 2, 2] += w * qz * qz
+    if accumulate:
+        for p in range(n_planes):
+            acc_S[p, 1, 0] = acc_S[p, 0, 1]
+            acc_S[p, 2, 0] = acc_S[p, 0, 2]
+            acc_S[p, 2, 1] = acc_S[p, 1, 2]
+    return n_assigned
+
+
+@njit
+def solve_planes(acc_w, acc_s, acc_S, refs, ray_mode, planes, wmom, wscat):
+    """Refit every plane with a positive weight from moments about ``refs``: ``planes`` (P, 4) updated (normal
+    toward the sensor), moments moved to the origin into ``wmom`` (P, 4) ``[W, sum w p]`` and ``wscat`` (P, 3, 3)."""
+    A = np.empty((3, 3))
+    w3 = np.empty(3)
+    V = np.empty((3, 3))
+    for p in range(planes.shape[0]):
+        W = acc_w[p]
+        if not W > 0.0:
+            continue
+        nx, ny, nz, d, _l0, _l1, _l2 = solve_plane(W, acc_s[p], acc_S[p], refs[p], ray_mode, A, w3, V)
+        if d < 0.0:
+            nx, ny, nz, d = -nx, -ny, -nz, -d
+        planes[p, 0] = nx
+        planes[p, 1] = ny
+        planes[p, 2] = nz
+        planes[p, 3] = d
+        wmom[p, 0] = W
+        for i in range(3):
+            wmom[p, 1 + i] = acc_s[p, i] + W * refs[p, i]
+            for k in range(3):
+                wscat[p, i, k] = (acc_S[p, i, k] + acc_s[p, i] * refs[p, k] + refs[p, i] * acc_s[p, k]
+                                  + W * refs[p, i] * refs[p, k])
+
+
+@njit
+def plane_point_stats(sorted_pts, point_plane, m, planes, counts, sums, scatters, uvbox):
+    """Point count, sum and scatter (about the origin) of each plane's supporting points, and the bounds
+    ``[u_min, u_max, v_min, v_max]`` of their in-plane coordinates. Outputs are zeroed here."""
+    n_planes = planes.shape[0]
+    tb = np.empty((n_planes, 6))
+    for p in range(n_planes):
+        t1x, t1y, t1z, t2x, t2y, t2z = tangent_basis(planes[p, 0], planes[p, 1], planes[p, 2])
+        tb[p, 0] = t1x
+        tb[p, 1] = t1y
+        tb[p, 2] = t1z
+        tb[p, 3] = t2x
+        tb[p, 4] = t2y
+        tb[p, 5] = t2z
+        counts[p] = 0
+        sums[p, :] = 0.0
+        scatters[p, :, :] = 0.0
+        uvbox[p, 0] = np.inf
+        uvbox[p, 1] = -np.inf
+        uvbox[p, 2] = np.inf
+        uvbox[p, 3] = -np.inf
+    for j in range(m):
+        p = point_plane[j]
+        if p < 0:
+            continue
+        x = np.float64(sorted_pts[j, 0])
+        y = np.float64(sorted_pts[j, 1])
+        z = np.float64(sorted_pts[j, 2])
+        counts[p] += 1
+        sums[p, 0] += x
+        sums[p, 1] += y
+        sums[p, 2] += z
+        scatters[p, 0, 0] += x * x
+        scatters[p, 0, 1] += x * y
+        scatters[p, 0, 2] += x * z
+        scatters[p, 1, 1] += y * y
+        scatters[p, 1, 2] += y * z
+        scatters[p, 2, 2] += z * z
+        u = tb[p, 0] * x + tb[p, 1] * y + tb[p, 2] * z
+        v = tb[p, 3] * x + tb[p, 4] * y + tb[p, 5] * z
+        uvbox[p, 0] = min(uvbox[p, 0], u)
+        uvbox[p, 1] = max(uvbox[p, 1], u)
+        uvbox[p, 2] = min(uvbox[p, 2], v)
+        uvbox[p, 3] = max(uvbox[p, 3], v)
+    for p in range(n_planes):
+        scatters[p, 1, 0] = scatters[p, 0, 1]
+        scatters[p, 2, 0] = scatters[p, 0, 2]
+        scatters[p, 2, 1] = scatters[p, 1, 2]
+
+
+@njit
+def grid_shape(uvbox, cell, out):
+    """Per plane: first cell ``(iu0, iv0)`` and size ``(nu, nv)`` of the in-plane grid of edge ``cell`` covering
+    ``uvbox``; ``out`` (P, 4) int64. Returns the total number of cells."""
+    total = 0
+    for p in range(uvbox.shape[0]):
+        if not uvbox[p, 1] >= uvbox[p, 0]:
+            out[p, 0] = 0
+            out[p, 1] = 0
+            out[p, 2] = 0
+            out[p, 3] = 0
+            continue
+        iu0 = int(math.floor(uvbox[p, 0] / cell))
+        iv0 = int(math.floor(uvbox[p, 2] / cell))
+        out[p, 0] = iu0
+        out[p, 1] = iv0
+        out[p, 2] = int(math.floor(uvbox[p, 1] / cell)) - iu0 + 1
+        out[p, 3] = int(math.floor(uvbox[p, 3] / cell)) - iv0 + 1
+        total += out[p, 2] * out[p, 3]
+    return total
+
+
+@njit
+def plane_extent(sorted_pts, point_plane, m, planes, centroids, area_cell, area_grid, area_off, occupied,
+                 sample_cell, sample_grid, sample_off, sample_acc, radii, areas):
+    """Radius (largest distance of a supporting point from the centroid), area (occupied ``area_cell`` squares
+    times ``area_cell^2``) and per-cell point sums for the samples (``sample_acc`` rows ``[n, sx, sy, sz]``).
+
+    ``area_grid`` / ``sample_grid`` (P, 4) from :func:`grid_shape`, ``area_off`` / ``sample_off`` (P + 1,) offsets of
+    each plane's cells into ``occupied`` (uint8) / ``sample_acc`` (float64, 4 per cell); both zeroed here.
+    """
+    n_planes = planes.shape[0]
+    tb = np.empty((n_planes, 6))
+    for p in range(n_planes):
+        t1x, t1y, t1z, t2x, t2y, t2z = tangent_basis(planes[p, 0], planes[p, 1], planes[p, 2])
+        tb[p, 0] = t1x
+        tb[p, 1] = t1y
+        tb[p, 2] = t1z
+        tb[p, 3] = t2x
+        tb[p, 4] = t2y
+        tb[p, 5] = t2z
+        radii[p] = 0.0
+    occupied[: area_off[n_planes]] = 0
+    sample_acc[: sample_off[n_planes], :] = 0.0
+    inv_a = 1.0 / area_cell
+    inv_s = 1.0 / sample_cell
+    for j in range(m):
+        p = point_plane[j]
+        if p < 0:
+            continue
+        x = np.float64(sorted_pts[j, 0])
+        y = np.float64(sorted_pts[j, 1])
+        z = np.float64(sorted_pts[j, 2])
+        dx = x - centroids[p, 0]
+        dy = y - centroids[p, 1]
+        dz = z - centroids[p, 2]
+        radii[p] = max(radii[p], dx * dx + dy * dy + dz * dz)
+        u = tb[p, 0] * x + tb[p, 1] * y + tb[p, 2] * z
+        v = tb[p, 3] * x + tb[p, 4] * y + tb[p, 5] * z
+        iu = min(max(int(math.floor(u * inv_a)) - area_grid[p, 0], 0), area_grid[p, 2] - 1)
+        iv = min(max(int(math.floor(v * inv_a)) - area_grid[p, 1], 0), area_grid[p, 3] - 1)
+        occupied[area_off[p] + iu * area_grid[p, 3] + iv] = 1
+        iu = min(max(int(math.floor(u * inv_s)) - sample_grid[p, 0], 0), sample_grid[p, 2] - 1)
+        iv = min(max(int(math.floor(v * inv_s)) - sample_grid[p, 1], 0), sample_grid[p, 3] - 1)
+        c = sample_off[p] + iu * sample_grid[p, 3] + iv
+        sample_acc[c, 0] += 1.0
+        sample_acc[c, 1] += x
+        sample_acc[c, 2] += y
+        sample_acc[c, 3] += z
+    for p in range(n_planes):
+        radii[p] = math.sqrt(radii[p])
+        cnt = 0
+        for c in range(area_off[p], area_off[p + 1]):
+            cnt += occupied[c]
+        areas[p] = cnt * area_cell * area_cell
+
+
+@njit
+def collect_samples(sample_acc, sample_off, keep, sample_points, sample_ptr):
+    """Mean point of every occupied sample cell of the planes ``keep`` (in that order) into ``sample_points``
+    (float32) with CSR offsets ``sample_ptr`` (len(keep) + 1,); returns the number of samples."""
+    k = 0
+    sample_ptr[0] = 0
+    for i in range(keep.shape[0]):
+        p = keep[i]
+        for c in range(sample_off[p], sample_off[p + 1]):
+            n = sample_acc[c, 0]
+            if n > 0.0:
+                sample_points[k, 0] = sample_acc[c, 1] / n
+                sample_points[k, 1] = sample_acc[c, 2] / n
+                sample_points[k, 2] = sample_acc[c, 3] / n
+                k += 1
+        sample_ptr[i + 1] = k
+    return k
+
+
+@njit
+def write_labels(point_plane, sorted_src, pix, m, remap, width, height, stride, labels):
+    """Label image (H * W,) int32: ``remap[plane]`` at the pixel of every supporting point (the whole
+    ``stride x stride`` block it stands for), -1 elsewhere."""
+    labels[:] = -1
+    for j in range(m):
+        p = point_plane[j]
+        if p < 0:
+            continue
+        q = remap[p]
+        if q < 0:
+            continue
+        k = pix[sorted_src[j]]
+        v0 = k // width
+        u0 = k % width
+        for v in range(v0, min(v0 + stride, height)):
+            for u in range(u0, min(u0 + stride, width)):
+                labels[v * width + u] = q
+
+
+@register_warmup
+def _warmup() -> None:
+    rng = np.random.default_rng(0)
+    m = 30
+    pts = np.column_stack([rng.uniform(0, 0.2, m), rng.uniform(0, 0.2, m), np.full(m, 2.0)]).astype(np.float32)
+    start = np.array([0, 15, m], np.int64)
+    box = np.array([0, 0, 8, 2, 1, 1], np.int64)
+    cellmap = np.array([0, 1], np.int32)
+    tk = np.full(4, -1, np.int64)
+    tv = np.zeros(4, np.int32)
+    vkey = np.array([0, 1], np.int64)
+    planes = np.array([[0, 0, -1.0, 2.0]])
+    pp = np.empty(m, np.int32)
+    refs = np.zeros((1, 3))
+    aw = np.zeros(1)
+    a_s = np.zeros((1, 3))
+    aS = np.zeros((1, 3, 3))
+    an = np.zeros(1, np.int64)
+    amb = np.zeros(1, np.int64)
+    asum = np.zeros((1, 3))
+    for dense in (True, False):
+        assign_points(pts, start, 2, vkey, box, dense, cellmap, tk, tv, np.array([0, -1], np.int32), planes,
+                      np.array([4.0]), 2, 1.425e-3, True, True, pp, True, True, refs, aw, a_s, aS, an, asum, amb)
+    for ray in (True, False):
+        solve_planes(aw, a_s, aS, refs, ray, planes.copy(), np.zeros((1, 4)), np.zeros((1, 3, 3)))
+    counts = np.zeros(1, np.int64)
+    sums = np.zeros((1, 3))
+    scat = np.zeros((1, 3, 3))
+    uvbox = np.zeros((1, 4))
+    plane_point_stats(pts, pp, m, planes, counts, sums, scat, uvbox)
+    ag = np.zeros((1, 4), np.int64)
+    sg = np.zeros((1, 4), np.int64)
+    na = grid_shape(uvbox, 0.1, ag)
+    ns = grid_shape(uvbox, 0.1, sg)
+    aoff = np.array([0, na], np.int64)
+    soff = np.array([0, ns], np.int64)
+    occ = np.zeros(na, np.uint8)
+    acc = np.zeros((ns, 4))
+    cent = sums / max(counts[0], 1)
+    radii = np.zeros(1)
+    areas = np.zeros(1)
+    plane_extent(pts, pp, m, planes, cent, 0.1, ag, aoff, occ, 0.1, sg, soff, acc, radii, areas)
+    sp = np.zeros((ns, 3), np.float32)
+    ptr = np.zeros(2, np.int64)
+    collect_samples(acc, soff, np.array([0], np.int64), sp, ptr)
+    labels = np.empty(20, np.int32)
+    write_labels(pp, np.arange(m).astype(np.int32) % 20, np.arange(20).astype(np.int32), m,
+                 np.array([0], np.int32), 5, 4, 1, labels)

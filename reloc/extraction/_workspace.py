@@ -1,0 +1,26 @@
+"""Reusable scratch buffers, so that a stream of frames does not allocate (and page-fault) megabytes per frame."""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+class Workspace:
+    """Named buffers that grow on demand; :meth:`get` returns a view valid until the next call with that name."""
+
+    def __init__(self) -> None:
+        self._bufs: dict[str, np.ndarray] = {}
+
+    def get(self, name: str, shape, dtype) -> np.ndarray:
+        shape = (shape,) if np.isscalar(shape) else tuple(int(s) for s in shape)
+        size = int(np.prod(shape)) if shape else 1
+        dtype = np.dtype(dtype)
+        buf = self._bufs.get(name)
+        if buf is None or buf.dtype != dtype or buf.size < size:
+            buf = np.empty(max(size + size // 4, 16), dtype)
+            self._bufs[name] = buf
+        return buf[:size].reshape(shape)
+
+
+def fresh(workspace: Workspace | None) -> Workspace:
+    return workspace if workspace is not None else Workspace()

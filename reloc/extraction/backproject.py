@@ -1,0 +1,88 @@
+"""Stage 1: a depth image becomes camera-frame points, each with the pixel it came from."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from reloc.camera import Intrinsics
+from reloc.extraction import _kernels_voxel as kv
+from reloc.extraction._workspace import Workspace, fresh
+
+__all__ = ["depth_to_points"]
+
+
+def depth_to_points(
+    depth_m: np.ndarray,
+    intrinsics: Intrinsics,
+    *,
+    min_depth_m: float = 0.3,
+    max_depth_m: float = 8.0,
+    pixel_stride: int = 1,
+    workspace: Workspace | None = None,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Back-project the valid pixels of a depth image.
+
+    Args:
+        depth_m: (H, W) depth in metres (float32 preferred); 0, NaN, inf, negative values and depths outside
+            ``[min_depth_m, max_depth_m]`` are dropped, never propagated.
+        intrinsics: pinhole intrinsics of the image (a negative ``fy``, as in ICL-NUIM, is used as given).
+        pixel_stride: use every n-th pixel in both directions.
+        workspace: reuse buffers across calls (the returned arrays are then views, valid until the next call).
+
+    Returns:
+        ``(points (M, 3) float32 in the camera frame, pixels (M,) int32 flat index v * W + u)``, row-major order.
+    """
+    depth = np.asarray(depth_m)
+    if depth.ndim != 2 or depth.shape != intrinsics.shape:
+        raise ValueError(f"depth_m: expected shape {intrinsics.shape} (from the intrinsics), got {depth.shape}")
+    if depth.dtype != np.float32:
+        depth = depth.astype(np.float32)
+    depth = np.ascontiguousarray(depth)
+    if not isinstance(pixel_stride, (int, np.integer)) or pixel_stride < 1:
+        raise ValueError(f"pixel_stride: expected an integer >= 1, got {pixel_stride!r}")
+    if not (0 <= min_depth_m < max_depth_m):
+        raise ValueError(f"min_depth_m, max_depth_m: expected 0 <= min < max, got {min_depth_m}, {max_depth_m}")
+    h, w = depth.shape
+    cap = ((h + pixel_stride - 1) // pixel_stride) * ((w + pixel_stride - 1) // pixel_stride)
+    ws = fresh(workspace)
+    pts = ws.get("bp_points", (cap, 3), np.float32)
+    pix = ws.get("bp_pixels", cap, np.int32)
+    m = kv.backproject(depth, float(intrinsics.fx), float(intrinsics.fy), float(intrinsics.cx),
+                       float(intrinsics.cy), int(pixel_stride), float(min_depth_m), float(max_depth_m), pts, pix)
+    return pts[:m], pix[:m]
+
+
+def depth_to_keyed_points(
+    depth_m: np.ndarray,
+    intrinsics: Intrinsics,
+    box: np.ndarray,
+    *,
+    voxel_size_m: float,
+    min_depth_m: float = 0.3,
+    max_depth_m: float = 8.0,
+    pixel_stride: int = 1,
+    workspace: Workspace | None = None,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`depth_to_points` that also keys each point to its voxel in the dense ``box`` (from
+    ``voxelize.frustum_box``) and counts points per cell, in the same pass.
+
+    Returns ``(points, pixels, point_key (M,) int64, cellcount (nx*ny*nz,) int32)``, ready for
+    ``voxelize.voxelize_keyed``.
+    """
+    depth = np.asarray(depth_m)
+    if depth.ndim != 2 or depth.shape != intrinsics.shape:
+        raise ValueError(f"depth_m: expected shape {intrinsics.shape} (from the intrinsics), got {depth.shape}")
+    depth = np.ascontiguousarray(depth, dtype=np.float32)
+    if not isinstance(pixel_stride, (int, np.integer)) or pixel_stride < 1:
+        raise ValueError(f"pixel_stride: expected an integer >= 1, got {pixel_stride!r}")
+    h, w = depth.shape
+    cap = ((h + pixel_stride - 1) // pixel_stride) * ((w + pixel_stride - 1) // pixel_stride)
+    ws = fresh(workspace)
+    pts = ws.get("bp_points", (cap, 3), np.float32)
+    pix = ws.get("bp_pixels", cap, np.int32)
+    key = ws.get("vx_point_key", cap, np.int64)
+    cellcount = ws.get("vx_cellmap", int(box[3] * box[4] * box[5]), np.int32)
+    m = kv.backproject_keys(depth, float(intrinsics.fx), float(intrinsics.fy), float(intrinsics.cx),
+                            float(intrinsics.cy), int(pixel_stride), float(min_depth_m), float(max_depth_m),
+                            1.0 / float(voxel_size_m), box, pts, pix, key, cellcount)
+    return pts[:m], pix[:m], key[:m], cellcount

@@ -1,0 +1,246 @@
+"""Stage 5: voxel planes merged into planes (paper: 'Plane merging'): 26-neighbour voxel growth from a seed list,
+then merging of under-grown fragments; every merged plane is refit from its summed weighted moments. Then the
+refinement (beyond the paper): one robust pass over the points near each merged plane refits it and lets
+fragments that the voxel noise kept apart merge.
+
+Points are in the sensor frame with the sensor at the origin."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from reloc.extraction import _kernels_finalize as kfin
+from reloc.extraction import _kernels_linalg as kl
+from reloc.extraction import _kernels_merge as km
+from reloc.extraction._workspace import Workspace, fresh
+from reloc.extraction.params import noise_law_code
+from reloc.extraction.voxel_planes import PLANAR, VoxelPlanes
+from reloc.extraction.voxelize import VoxelGrid
+
+__all__ = ["MergedPlanes", "merge_voxel_planes", "refine_merged_planes", "plane_covariances"]
+
+
+@dataclass(frozen=True)
+class MergedPlanes:
+    """Planes after merging (P rows, own arrays), and which voxels make them.
+
+    - ``plane_of_voxel`` (V,) int32: plane index of each voxel, -1 for none.
+    - ``planes`` (P, 4) ``[n, d]`` toward the sensor, refit from ``wmoments`` (P, 4) ``[W, sum w p]`` and
+      ``wscatters`` (P, 3, 3) (about the origin); ``n_eff`` (P,) points with a non-zero weight.
+    - ``counts`` (P,), ``sums`` (P, 3): the plane's points (all points of its voxels after growth, the supporting
+      points after refinement); ``radius_bound`` (P,) an upper bound of the radius from the voxels' centroids and
+      radii; ``n_voxels`` (P,).
+    - ``covariances`` (P, 4, 4) of ``(n, d)`` and ``variance_factors`` (P,) (``s0^2``, 1 for an exact noise law).
+    - ``n_fragment_merges``: merges made by the under-grown steps.
+    """
+
+    plane_of_voxel: np.ndarray
+    planes: np.ndarray
+    wmoments: np.ndarray
+    wscatters: np.ndarray
+    n_eff: np.ndarray
+    counts: np.ndarray
+    sums: np.ndarray
+    radius_bound: np.ndarray
+    n_voxels: np.ndarray
+    covariances: np.ndarray
+    variance_factors: np.ndarray
+    n_fragment_merges: int
+
+    def __len__(self) -> int:
+        return int(self.planes.shape[0])
+
+
+def plane_covariances(planes, wmoments, wscatters, n_eff, *, ray_mode: bool = True) -> tuple[np.ndarray, np.ndarray]:
+    """(P, 4, 4) covariances of ``(n, d)`` and (P,) variance factors from weighted moments about the origin, for
+    planes solved in the ray form (``ray_mode``) or by total least squares."""
+    n = planes.shape[0]
+    covs = np.zeros((n, 4, 4))
+    s0 = np.zeros(n)
+    if n:
+        kl.plane_covariances(np.ascontiguousarray(planes), np.ascontiguousarray(wmoments),
+                             np.ascontiguousarray(wscatters), np.ascontiguousarray(n_eff, dtype=np.int64),
+                             bool(ray_mode), covs, s0)
+    return covs, s0
+
+
+def _fragment_args(noise_model, noise_coeff, undergrown_max_angle_rad, grow_angle_noise_sigmas,
+                   undergrown_max_depth_angle_rad, undergrown_max_offset_m, grow_offset_sigmas, max_thickness_sigmas,
+                   max_thickness_floor_m, undergrown_radius_scale) -> tuple:
+    return (noise_law_code(noise_model), float(noise_coeff), float(undergrown_max_angle_rad),
+            float(grow_angle_noise_sigmas), float(undergrown_max_depth_angle_rad), float(undergrown_max_offset_m),
+            float(grow_offset_sigmas), float(max_thickness_sigmas), float(max_thickness_floor_m),
+            float(undergrown_radius_scale))
+
+
+def _merge_and_pack(plane_of_region, rplane, rmom, rscat, rcount, rsum, rneff, rrad, *, merge, ray, fragment_args,
+                    n_merges_before=0) -> MergedPlanes:
+    """Under-grown fragment merging over regions, then the surviving regions packed as :class:`MergedPlanes`.
+
+    ``plane_of_region`` (V,) maps voxels to region indices (-1 for none)."""
+    nr = rplane.shape[0]
+    parent = np.arange(nr, dtype=np.int32)
+    n_merges = 0
+    if merge and nr > 1:
+        n_merges = km.merge_fragments(nr, rplane, rmom, rscat, rcount, rsum, rneff, rrad, ray, *fragment_args,
+                                      parent, 16)
+    # Resolve merge chains to their surviving region, and number the survivors.
+    root = parent.copy()
+    for _ in range(nr):
+        nxt = root[root]
+        if np.array_equal(nxt, root):
+            break
+        root = nxt
+    survivors = np.flatnonzero(root == np.arange(nr))
+    final = np.full(nr, -1, np.int32)
+    final[survivors] = np.arange(len(survivors), dtype=np.int32)
+    reg = plane_of_region
+    if nr:
+        plane_of_voxel = np.where(reg >= 0, final[root[np.maximum(reg, 0)]], -1).astype(np.int32)
+    else:
+        plane_of_voxel = np.full(reg.shape, -1, np.int32)
+    n_voxels = np.bincount(plane_of_voxel[plane_of_voxel >= 0], minlength=len(survivors)).astype(np.int64)
+    covs, s0 = plane_covariances(rplane[survivors], rmom[survivors], rscat[survivors], rneff[survivors], ray_mode=ray)
+    return MergedPlanes(
+        plane_of_voxel=plane_of_voxel, planes=rplane[survivors], wmoments=rmom[survivors],
+        wscatters=rscat[survivors], n_eff=rneff[survivors], counts=rcount[survivors], sums=rsum[survivors],
+        radius_bound=rrad[survivors], n_voxels=n_voxels, covariances=covs, variance_factors=s0,
+        n_fragment_merges=int(n_merges + n_merges_before),
+    )
+
+
+def merge_voxel_planes(
+    grid: VoxelGrid,
+    vp: VoxelPlanes,
+    *,
+    merge: bool = True,
+    grow_max_angle_rad: float = np.radians(10.0),
+    grow_max_offset_m: float = 0.04,
+    grow_offset_sigmas: float = 2.0,
+    grow_angle_noise_sigmas: float = 2.0,
+    max_thickness_sigmas: float = 4.0,
+    max_thickness_floor_m: float = 0.01,
+    undergrown_max_angle_rad: float = np.radians(8.0),
+    undergrown_max_depth_angle_rad: float = np.radians(5.0),
+    undergrown_max_offset_m: float = 0.05,
+    undergrown_radius_scale: float = 1.5,
+    noise_model: str = "kinect",
+    noise_coeff: float = 1.425e-3,
+    noise_direction: str = "ray",
+    workspace: Workspace | None = None,
+) -> MergedPlanes:
+    """Merge the planar voxels of ``vp`` (refined, so their weighted moments exist) into planes.
+
+    Seeds are the planar voxels from the most populated (ties by voxel id, so the result does not depend on the
+    order of the points). ``merge=False`` keeps every planar voxel as its own plane (the paper's VR-NM).
+    ``noise_direction`` picks the plane solver of the refits (as in :func:`refine_voxel_planes`).
+    """
+    ws = fresh(workspace)
+    ray = noise_direction == "ray"
+    nv = len(grid)
+    planar = np.flatnonzero(vp.flags[:nv] == PLANAR)
+    seeds = planar[np.argsort(-grid.counts[planar], kind="stable")].astype(np.int64)
+    n_seed = len(seeds)
+    region_of = ws.get("mg_region_of", nv, np.int32)
+    rmom = np.zeros((n_seed, 4))
+    rscat = np.zeros((n_seed, 3, 3))
+    rplane = np.zeros((n_seed, 4))
+    rcount = np.zeros(n_seed, np.int64)
+    rsum = np.zeros((n_seed, 3))
+    rneff = np.zeros(n_seed, np.int64)
+    rrad = np.zeros(n_seed)
+    queue = ws.get("mg_queue", max(nv, 1), np.int32)
+    nr = 0
+    if nv:
+        nr = km.grow_regions(
+            nv, vp.flags, grid.keys, grid.box, grid.dense, grid.cellmap, grid.tkeys, grid.tvals, seeds, vp.planes,
+            grid.counts, grid.sums, grid.scatters, vp.eigenvalues, vp.wmoments, vp.wscatters, vp.n_eff, vp.radius,
+            ray, noise_law_code(noise_model), float(noise_coeff), float(grow_max_angle_rad),
+            float(grow_angle_noise_sigmas), float(grow_max_offset_m), float(grow_offset_sigmas),
+            float(max_thickness_sigmas), float(max_thickness_floor_m), bool(merge), region_of, rmom, rscat, rplane,
+            rcount, rsum, rneff, rrad, queue,
+        )
+    fragment_args = _fragment_args(noise_model, noise_coeff, undergrown_max_angle_rad, grow_angle_noise_sigmas,
+                                   undergrown_max_depth_angle_rad, undergrown_max_offset_m, grow_offset_sigmas,
+                                   max_thickness_sigmas, max_thickness_floor_m, undergrown_radius_scale)
+    return _merge_and_pack(region_of[:nv].copy(), rplane[:nr], rmom[:nr], rscat[:nr], rcount[:nr], rsum[:nr],
+                           rneff[:nr], rrad[:nr], merge=merge, ray=ray, fragment_args=fragment_args)
+
+
+def refine_merged_planes(
+    grid: VoxelGrid,
+    merged: MergedPlanes,
+    *,
+    merge: bool = True,
+    inlier_sigmas: float = 4.0,
+    refine_boundary: bool = True,
+    noise_weights: bool = True,
+    grow_offset_sigmas: float = 2.0,
+    grow_angle_noise_sigmas: float = 2.0,
+    max_thickness_sigmas: float = 4.0,
+    max_thickness_floor_m: float = 0.01,
+    undergrown_max_angle_rad: float = np.radians(8.0),
+    undergrown_max_depth_angle_rad: float = np.radians(5.0),
+    undergrown_max_offset_m: float = 0.05,
+    undergrown_radius_scale: float = 1.5,
+    noise_model: str = "kinect",
+    noise_coeff: float = 1.425e-3,
+    noise_direction: str = "ray",
+    workspace: Workspace | None = None,
+) -> MergedPlanes:
+    """One robust pass over the points near each merged plane: refit, then merge fragments again.
+
+    Every point of a plane's voxels and (``refine_boundary``) of their neighbours goes to the nearest candidate
+    plane within ``inlier_sigmas`` (times the plane's robust scale, at least 1) noise sigmas; each plane is refit
+    from its points weighted by Tukey's biweight of that width times the inverse noise variance. This removes what
+    the voxel faces did to the merged plane (points the noise pushed into a neighbouring voxel were lost to it) and
+    puts fragments of one surface on nearly the same plane, so the under-grown step can now merge them.
+    """
+    ws = fresh(workspace)
+    ray = noise_direction == "ray"
+    n = len(merged)
+    m = int(grid.start[-1]) if len(grid.start) else 0
+    if n == 0 or m == 0:
+        return merged
+    planes = merged.planes.copy()
+    refs = merged.sums / np.maximum(merged.counts, 1)[:, None]
+    band = float(inlier_sigmas) * np.sqrt(np.maximum(merged.variance_factors, 1.0))
+    point_plane = ws.get("rf_point_plane", m, np.int32)
+    acc_w = np.zeros(n)
+    acc_s = np.zeros((n, 3))
+    acc_S = np.zeros((n, 3, 3))
+    acc_n = np.zeros(n, np.int64)
+    acc_sum = np.zeros((n, 3))
+    acc_amb = np.zeros(n, np.int64)
+    kfin.assign_points(
+        grid.points, grid.start, len(grid), grid.keys, grid.box, grid.dense, grid.cellmap, grid.tkeys, grid.tvals,
+        merged.plane_of_voxel, planes, band, noise_law_code(noise_model), float(noise_coeff), ray,
+        bool(refine_boundary), point_plane, True, bool(noise_weights), refs, acc_w, acc_s, acc_S, acc_n, acc_sum,
+        acc_amb,
+    )
+    wmom = merged.wmoments.copy()
+    wscat = merged.wscatters.copy()
+    kfin.solve_planes(acc_w, acc_s, acc_S, refs, ray, planes, wmom, wscat)
+    # A plane whose points are mostly at a corner of two other planes is a bevel across that corner made by voxels
+    # holding both surfaces: drop it, its points go to the planes around it.
+    bevel = acc_amb > acc_n
+    keep = ~bevel
+    # Planes that kept points take their refined statistics; the others keep the merged ones.
+    kept = acc_n > 3
+    counts = np.where(kept, acc_n, merged.counts)
+    sums = np.where(kept[:, None], acc_sum, merged.sums)
+    n_eff = np.where(kept, acc_n, merged.n_eff)
+    plane_of_voxel = merged.plane_of_voxel
+    if bevel.any():
+        remap = np.full(n, -1, np.int32)
+        remap[keep] = np.arange(int(keep.sum()), dtype=np.int32)
+        plane_of_voxel = np.where(plane_of_voxel >= 0, remap[np.maximum(plane_of_voxel, 0)], -1).astype(np.int32)
+        planes, wmom, wscat, counts, sums, n_eff = (x[keep] for x in (planes, wmom, wscat, counts, sums, n_eff))
+    fragment_args = _fragment_args(noise_model, noise_coeff, undergrown_max_angle_rad, grow_angle_noise_sigmas,
+                                   undergrown_max_depth_angle_rad, undergrown_max_offset_m, grow_offset_sigmas,
+                                   max_thickness_sigmas, max_thickness_floor_m, undergrown_radius_scale)
+    return _merge_and_pack(plane_of_voxel, planes, wmom, wscat, counts.astype(np.int64), sums,
+                           n_eff.astype(np.int64), merged.radius_bound[keep].copy(), merge=merge, ray=ray,
+                           fragment_args=fragment_args, n_merges_before=merged.n_fragment_merges)

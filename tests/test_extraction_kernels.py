@@ -1,0 +1,262 @@
+"""Extraction kernels against slow, obviously-correct NumPy references (small inputs)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from reloc.camera import Intrinsics
+from reloc.extraction import _kernels_merge as km
+from reloc.extraction.assemble import assemble_plane_set
+from reloc.extraction.backproject import depth_to_keyed_points, depth_to_points
+from reloc.extraction.merge import merge_voxel_planes
+from reloc.extraction.voxel_planes import PLANAR, fit_voxel_planes, refine_voxel_planes
+from reloc.extraction.voxelize import frustum_box, voxelize, voxelize_keyed
+
+K_SMALL = Intrinsics(fx=40.0, fy=-42.0, cx=15.5, cy=11.5, width=32, height=24)  # negative fy, as ICL-NUIM
+
+
+def _bad_depth(rng):
+    depth = rng.uniform(0.5, 6.0, size=(24, 32)).astype(np.float32)
+    depth[0, :5] = [np.nan, np.inf, -1.0, 0.0, -np.inf]
+    depth[5, 5] = 9.0  # beyond range
+    depth[6, 6] = 0.1  # nearer than the minimum
+    return depth
+
+
+@pytest.mark.parametrize("stride", [1, 2, 3])
+def test_backproject_matches_numpy_and_drops_invalid(stride):
+    rng = np.random.default_rng(stride)
+    depth = _bad_depth(rng)
+    pts, pix = depth_to_points(depth, K_SMALL, min_depth_m=0.3, max_depth_m=8.0, pixel_stride=stride)
+    v, u = np.mgrid[0:24:stride, 0:32:stride]
+    z = depth[v, u].astype(np.float64)
+    ok = np.isfinite(z) & (z > 0) & (z >= 0.3) & (z <= 8.0)
+    ref = np.stack([(u - K_SMALL.cx) / K_SMALL.fx * z, (v - K_SMALL.cy) / K_SMALL.fy * z, z], -1)[ok]
+    assert np.array_equal(pix, (v * 32 + u)[ok])
+    assert np.allclose(pts, ref, rtol=1e-6, atol=1e-6)
+    assert np.all(np.isfinite(pts)) and np.all(pts[:, 2] >= 0.3)
+    # The keyed variant gives the same points, and keys into the frustum box.
+    box = frustum_box(K_SMALL, min_depth_m=0.3, max_depth_m=8.0, voxel_size_m=0.25)
+    pts2, pix2, key, cellcount = depth_to_keyed_points(depth, K_SMALL, box, voxel_size_m=0.25, min_depth_m=0.3,
+                                                     max_depth_m=8.0, pixel_stride=stride)
+    assert np.array_equal(pts2, pts) and np.array_equal(pix2, pix)
+    ijk = np.floor(pts.astype(np.float64) / 0.25).astype(np.int64) - box[:3]
+    assert np.all(ijk >= 0) and np.all(ijk < box[3:])
+    assert np.array_equal(key, (ijk[:, 0] * box[4] + ijk[:, 1]) * box[5] + ijk[:, 2])
+    assert np.array_equal(cellcount, np.bincount(key, minlength=len(cellcount)))
+
+
+def _voxel_reference(pts, size):
+    """Voxel of each point, the voxels in key order, their members, counts and moments, with NumPy."""
+    ijk = np.floor(pts.astype(np.float64) / size).astype(np.int64)
+    uniq, inverse = np.unique(ijk, axis=0, return_inverse=True)
+    inverse = inverse.reshape(-1)
+    p = pts.astype(np.float64)
+    counts = np.bincount(inverse)
+    sums = np.stack([np.bincount(inverse, weights=p[:, k]) for k in range(3)], 1)
+    scat = np.stack([np.stack([np.bincount(inverse, weights=p[:, i] * p[:, j]) for j in range(3)], 1)
+                     for i in range(3)], 1)
+    return uniq, inverse, counts, sums, scat
+
+
+@pytest.mark.parametrize("force_hash", [False, True])
+def test_voxelize_matches_numpy_grouping(force_hash):
+    rng = np.random.default_rng(7)
+    pts = np.concatenate([rng.uniform(-2, 2, size=(3000, 3)), rng.normal(0.1, 0.05, size=(500, 3))]).astype(np.float32)
+    g = voxelize(pts, voxel_size_m=0.3, force_hash=force_hash)
+    uniq, inverse, counts, sums, scat = _voxel_reference(pts, 0.3)
+    # Voxel ids follow the key order, which is the lexicographic order of (ix, iy, iz).
+    assert np.array_equal(g.coords, uniq)
+    assert g.dense is (not force_hash)
+    assert np.array_equal(g.counts, counts)
+    assert np.allclose(g.sums, sums, rtol=1e-9, atol=1e-9)
+    assert np.allclose(g.scatters, scat, rtol=1e-9, atol=1e-9)
+    # Every point sits in its voxel's segment, in input order inside the voxel (a stable counting sort).
+    for v in range(len(g)):
+        src = g.source[g.start[v]:g.start[v + 1]]
+        assert np.array_equal(src, np.flatnonzero(inverse == v))
+        assert np.array_equal(g.points[g.start[v]:g.start[v + 1]], pts[src])
+    # Lookup of occupied and empty cells.
+    assert np.array_equal(g.lookup(uniq), np.arange(len(uniq)))
+    assert g.lookup(np.array([[1000, 1000, 1000]]))[0] == -1
+
+
+def test_voxelize_keyed_equals_voxelize():
+    rng = np.random.default_rng(3)
+    depth = rng.uniform(0.5, 7.0, size=(24, 32)).astype(np.float32)
+    box = frustum_box(K_SMALL, min_depth_m=0.3, max_depth_m=8.0, voxel_size_m=0.25)
+    pts, _pix, key, cellcount = depth_to_keyed_points(depth, K_SMALL, box, voxel_size_m=0.25)
+    a = voxelize_keyed(pts, key, cellcount, box, voxel_size_m=0.25)
+    b = voxelize(pts, voxel_size_m=0.25)
+    assert np.array_equal(a.coords, b.coords) and np.array_equal(a.counts, b.counts)
+    assert np.array_equal(a.source[: len(pts)], b.source[: len(pts)])
+    assert np.allclose(a.scatters, b.scatters, rtol=1e-9)
+
+
+def _plane_points(rng, n, normal, d, sigma, extent=0.2, centre=None):
+    normal = np.asarray(normal, float) / np.linalg.norm(normal)
+    a = np.cross(normal, [1.0, 0, 0] if abs(normal[0]) < 0.9 else [0, 1.0, 0])
+    a /= np.linalg.norm(a)
+    b = np.cross(normal, a)
+    c0 = -d * normal if centre is None else centre - (normal @ centre + d) * normal
+    uv = rng.uniform(-extent, extent, size=(n, 2))
+    return c0 + uv[:, :1] * a + uv[:, 1:] * b + rng.normal(0, sigma, size=(n, 1)) * normal
+
+
+def test_voxel_planes_match_numpy_weighted_fit():
+    rng = np.random.default_rng(11)
+    # Points of one tilted plane inside a single voxel [2.0, 2.25)^3-ish region around (0.1, 0.1, 2.1).
+    n_true = np.array([0.2, -0.1, -1.0])
+    n_true /= np.linalg.norm(n_true)
+    pts = _plane_points(rng, 400, n_true, -n_true @ np.array([0.12, 0.12, 2.12]), 0.002, extent=0.08,
+                        centre=np.array([0.12, 0.12, 2.12])).astype(np.float32)
+    g = voxelize(pts, voxel_size_m=0.25)
+    assert len(g) == 1
+    vp = fit_voxel_planes(g, min_points_per_voxel=12, noise_model="kinect", noise_coeff=1.425e-3)
+    assert vp.flags[0] == PLANAR
+    p = pts.astype(np.float64)
+    c = p.mean(0)
+    lam, vec = np.linalg.eigh(np.cov((p - c).T, bias=True))
+    assert np.allclose(vp.eigenvalues[0], lam, rtol=1e-6, atol=1e-12)
+    n_pca = vec[:, 0] * np.sign(-(vec[:, 0] @ c))  # toward the sensor at the origin
+    assert np.allclose(vp.planes[0, :3], n_pca, atol=1e-9)
+    # Weighted refit without robust or position weights: weighted TLS with w = z^2 / sigma_z^2 (ray mode).
+    refine_voxel_planes(g, vp, noise_direction="ray", noise_weights=True, adaptive_weights=False,
+                        irls_iterations=0, voxel_fit_max_points=1000)
+    w = p[:, 2] ** 2 / (1.425e-3 * p[:, 2] ** 2) ** 2
+    mu = (w[:, None] * p).sum(0) / w.sum()
+    C = (w[:, None] * (p - mu)).T @ (p - mu) / w.sum()
+    n_ref = np.linalg.eigh(C)[1][:, 0]
+    n_ref *= np.sign(-(n_ref @ mu))
+    assert np.allclose(vp.planes[0, :3], n_ref, atol=1e-9)
+    assert vp.planes[0, 3] == pytest.approx(-n_ref @ mu, abs=1e-9)
+    assert vp.wmoments[0, 0] == pytest.approx(w.sum(), rel=1e-9)
+    assert np.allclose(vp.wmoments[0, 1:], (w[:, None] * p).sum(0), rtol=1e-9)
+    assert np.allclose(vp.wscatters[0], (w[:, None] * p).T @ p, rtol=1e-9)
+    assert vp.radius[0] == pytest.approx(np.linalg.norm(p - c, axis=1).max(), rel=1e-6)
+
+
+def test_voxel_refit_rejects_outliers_and_a_blob_is_not_planar():
+    rng = np.random.default_rng(12)
+    centre = np.array([0.12, 0.12, 2.12])
+    n_true = np.array([0.0, 0.0, -1.0])
+    good = _plane_points(rng, 380, n_true, -n_true @ centre, 0.002, extent=0.1, centre=centre)
+    outl = centre + rng.uniform(-0.1, 0.1, size=(20, 3))  # 5 % of the voxel from another surface
+    blob = np.array([1.12, 0.12, 2.12]) + rng.uniform(-0.1, 0.1, size=(400, 3))
+    pts = np.concatenate([good, outl, blob]).astype(np.float32)
+    g = voxelize(pts, voxel_size_m=0.25)
+    vp = fit_voxel_planes(g)
+    refine_voxel_planes(g, vp, irls_iterations=3)
+    v_plane = g.lookup(np.floor(centre / 0.25)[None])[0]
+    v_blob = g.lookup(np.floor(np.array([1.12, 0.12, 2.12]) / 0.25)[None])[0]
+    assert vp.flags[v_plane] == PLANAR and vp.flags[v_blob] != PLANAR
+    assert np.degrees(np.arccos(abs(vp.planes[v_plane, :3] @ n_true))) < 0.5
+
+
+def _grid_of_plane(rng, n_true, d, sigma, extent, n):
+    pts = _plane_points(rng, n, n_true, d, sigma, extent=extent).astype(np.float32)
+    g = voxelize(pts, voxel_size_m=0.25)
+    vp = fit_voxel_planes(g)
+    refine_voxel_planes(g, vp, noise_direction="normal", adaptive_weights=False, irls_iterations=0)
+    return pts, g, vp
+
+
+def test_merging_tiny_case_matches_numpy():
+    """A wall across several voxels plus a parallel plane 0.5 m behind: growth makes exactly two planes, each refit
+    from the summed moments equal to the weighted fit of all its voxels' points."""
+    rng = np.random.default_rng(5)
+    n_true = np.array([0.0, 0.0, -1.0])
+    a = _plane_points(rng, 3000, n_true, 2.0, 0.002, extent=0.6)
+    b = _plane_points(rng, 3000, n_true, 2.5, 0.002, extent=0.6) + np.array([2.0, 0, 0])
+    pts = np.concatenate([a, b]).astype(np.float32)
+    g = voxelize(pts, voxel_size_m=0.25)
+    vp = fit_voxel_planes(g)
+    refine_voxel_planes(g, vp, noise_direction="normal", adaptive_weights=False, irls_iterations=0)
+    mp = merge_voxel_planes(g, vp, noise_direction="normal")
+    assert len(mp) == 2
+    for k, part in enumerate((a, b)):
+        # Which plane holds this part: the one with the same offset.
+        q = int(np.argmin(np.abs(mp.planes[:, 3] - (2.0, 2.5)[k])))
+        vox = np.flatnonzero(mp.plane_of_voxel == q)
+        assert np.isin(vox, vp.planar).all() and len(vox) > 4
+        idx = np.concatenate([g.source[g.start[v]:g.start[v + 1]] for v in vox])
+        p = pts[idx].astype(np.float64)
+        w = 1.0 / (1.425e-3 * p[:, 2] ** 2) ** 2
+        mu = (w[:, None] * p).sum(0) / w.sum()
+        n_ref = np.linalg.eigh((w[:, None] * (p - mu)).T @ (p - mu))[1][:, 0]
+        n_ref *= np.sign(-(n_ref @ mu))
+        assert np.allclose(mp.planes[q, :3], n_ref, atol=1e-9)
+        assert mp.planes[q, 3] == pytest.approx(-n_ref @ mu, abs=1e-9)
+        assert mp.counts[q] == len(idx)
+    # Without merging every planar voxel stays a plane of its own.
+    mp0 = merge_voxel_planes(g, vp, merge=False, noise_direction="normal")
+    assert len(mp0) == len(vp.planar)
+
+
+def test_fragment_merge_kernel_on_two_coplanar_regions():
+    """Two coplanar fragments side by side merge; a parallel one 0.3 m behind does not."""
+    rng = np.random.default_rng(9)
+    regions = []
+    for shift, d in (((0.0, 0, 0), 2.0), ((1.0, 0, 0), 2.0), ((0.0, 1.0, 0), 2.3)):
+        p = _plane_points(rng, 500, [0, 0, -1.0], d, 0.002, extent=0.4) + np.array(shift)
+        regions.append(p)
+    nr = 3
+    rmom = np.array([[len(p), *p.sum(0)] for p in regions])
+    rscat = np.array([p.T @ p for p in regions])
+    rcount = np.array([len(p) for p in regions], np.int64)
+    rsum = np.array([p.sum(0) for p in regions])
+    rneff = rcount.copy()
+    rrad = np.array([np.linalg.norm(p - p.mean(0), axis=1).max() for p in regions])
+    rplane = np.zeros((3, 4))
+    for r, p in enumerate(regions):
+        c = p.mean(0)
+        n = np.linalg.eigh(np.cov(p.T))[1][:, 0]
+        n *= np.sign(-(n @ c))
+        rplane[r] = [*n, -n @ c]
+    parent = np.empty(nr, np.int32)
+    merges = km.merge_fragments(nr, rplane, rmom, rscat, rcount, rsum, rneff, rrad, False, 2, 1.425e-3,
+                                np.radians(8.0), 2.0, np.radians(5.0), 0.05, 2.0, 4.0, 0.01, 2.0, parent, 8)
+    assert merges == 1
+    assert parent[1] == 0 or parent[0] == 1
+    assert parent[2] == 2
+    both = np.concatenate(regions[:2])
+    root = 0 if parent[1] == 0 else 1
+    assert rcount[root] == len(both)
+    c = both.mean(0)
+    n_ref = np.linalg.eigh(np.cov(both.T))[1][:, 0]
+    n_ref *= np.sign(-(n_ref @ c))
+    assert np.allclose(rplane[root, :3], n_ref, atol=1e-9)
+
+
+def test_assemble_statistics_match_numpy():
+    """Supporting points, statistics, radius, area and samples of a merged plane, against NumPy."""
+    rng = np.random.default_rng(21)
+    n_true = np.array([0.0, 0.0, -1.0])
+    pts = _plane_points(rng, 4000, n_true, 2.0, 0.001, extent=0.5).astype(np.float32)
+    g = voxelize(pts, voxel_size_m=0.25)
+    vp = fit_voxel_planes(g)
+    refine_voxel_planes(g, vp)
+    mp = merge_voxel_planes(g, vp)
+    ps = assemble_plane_set(g, mp, min_plane_points=10, min_plane_area_m2=0.0, area_patch_m=0.1,
+                            sample_spacing_m=0.2)
+    assert len(ps) == 1
+    p = pts.astype(np.float64)
+    assert ps.counts[0] == len(p)  # all points are within 4 sigma of the plane
+    assert np.allclose(ps.sums[0], p.sum(0), rtol=1e-9)
+    assert np.allclose(ps.scatters[0], p.T @ p, rtol=1e-9)
+    assert np.allclose(ps.centroids[0], p.mean(0), atol=1e-9)
+    assert ps.radii[0] == pytest.approx(np.linalg.norm(p - p.mean(0), axis=1).max(), rel=1e-6)
+    # Area: occupied 0.1 m cells of the in-plane coordinates (tangent basis of the normal, cells anchored at 0).
+    from reloc.extraction._kernels_linalg import tangent_basis
+
+    t = np.array(tangent_basis(*ps.normals[0])).reshape(2, 3)
+    cells = np.unique(np.floor(p @ t.T / 0.1).astype(np.int64), axis=0)
+    assert ps.areas[0] == pytest.approx(len(cells) * 0.01, rel=1e-9)
+    scells, inv = np.unique(np.floor(p @ t.T / 0.2).astype(np.int64), axis=0, return_inverse=True)
+    means = np.stack([np.bincount(inv.reshape(-1), weights=p[:, k]) for k in range(3)], 1)
+    means /= np.bincount(inv.reshape(-1))[:, None]
+    got = ps.samples_of(0).astype(np.float64)
+    assert len(got) == len(scells)
+    assert np.allclose(np.sort(got, axis=0), np.sort(means, axis=0), atol=1e-5)
+    assert ps.labels is None

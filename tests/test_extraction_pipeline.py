@@ -1,0 +1,222 @@
+"""Depth frames and point clouds to plane sets, against the simulator's ground truth and exact identities."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from reloc.camera import DepthFrame, Intrinsics
+from reloc.extraction import ExtractionParams, PlaneExtractor, extract_planes, extract_planes_from_points
+from reloc.planes import plane_errors
+
+K = Intrinsics(fx=262.5, fy=262.5, cx=159.5, cy=119.5, width=320, height=240)
+
+
+def _box_room(noise_coeff=1.425e-3, seed=0, R=None):
+    """Depth of a camera at the origin inside a 4 x 2.6 x 6 m box, Kinect noise along the rays; labels 1..6 and
+    the six planes (normal toward the camera, offset) in the camera frame."""
+    rng = np.random.default_rng(seed)
+    R = np.eye(3) if R is None else R
+    centre, half = np.array([0.3, -0.2, 2.0]), np.array([2.0, 1.3, 3.0])
+    v, u = np.mgrid[0:K.height, 0:K.width]
+    rays = np.stack([(u - K.cx) / K.fx, (v - K.cy) / K.fy, np.ones(u.shape)], -1)
+    planes, best, labels = [], np.full(u.shape, np.inf), np.zeros(u.shape, np.int32)
+    for ax in range(3):
+        for s in (-1, 1):
+            n = R @ (-s * np.eye(3)[ax])
+            d = -n @ (R @ (centre + s * half[ax] * np.eye(3)[ax]))
+            with np.errstate(divide="ignore", invalid="ignore"):
+                t = -d / (rays @ n)
+            hit = (t > 0) & (t < best)
+            best[hit], labels[hit] = t[hit], len(planes) + 1
+            planes.append(np.r_[n, d])
+    depth = best + rng.normal(size=best.shape) * noise_coeff * best**2
+    return depth.astype(np.float32), labels, np.array(planes)
+
+
+def _rot(axis, angle):
+    from reloc.transforms import rotation_from_axis_angle
+
+    a = np.asarray(axis, float)
+    return rotation_from_axis_angle(a / np.linalg.norm(a) * angle)
+
+
+def _matches(ps, labels, planes):
+    """For every ground-truth plane seen on > 2 % of the image: the extracted plane with the most of its pixels,
+    and that plane's angle (deg) and offset (m) errors."""
+    out = {}
+    for k in range(1, len(planes) + 1):
+        if (labels == k).sum() < 0.02 * labels.size:
+            continue
+        overlap = [((ps.labels == i) & (labels == k)).sum() for i in range(len(ps))]
+        if not overlap or max(overlap) == 0:
+            out[k] = None
+            continue
+        i = int(np.argmax(overlap))
+        out[k] = (i, *plane_errors(np.r_[ps.normals[i], ps.offsets[i]], planes[k - 1]))
+    return out
+
+
+def test_box_room_planes_are_recovered_with_their_set_filled():
+    depth, labels, planes = _box_room(R=_rot([0.3, 1.0, 0.2], 0.5))
+    frame = DepthFrame(depth, K, stamp_ns=0, gravity_cam=np.array([0.0, 0.9, 0.1]))
+    res = extract_planes(frame, ExtractionParams())
+    ps = res.planes
+    # Kinect noise at 2-5 m with 10^4 points per wall: a weighted fit is good to ~0.01 deg / 0.5 mm.
+    m = _matches(ps, labels, planes)
+    assert m and all(v is not None for v in m.values())
+    for k, (i, ang, off) in m.items():
+        assert ang < 0.1 and off < 0.005, (k, ang, off)
+    assert len(ps) == len(m)  # no spurious planes
+    # The set is complete and consistent.
+    assert np.allclose(np.linalg.norm(ps.normals, axis=1), 1.0)
+    assert np.all(ps.offsets > 0)  # normals toward the camera at the origin
+    assert np.allclose(ps.centroids, ps.sums / ps.counts[:, None])
+    assert np.allclose(ps.normals @ np.ones(3) * 0 + np.einsum("ij,ij->i", ps.normals, ps.centroids) + ps.offsets,
+                       0.0, atol=0.01)
+    assert np.all(np.diff(ps.counts) <= 0)  # largest first
+    for i in range(len(ps)):
+        assert ps.counts[i] == (ps.labels == i).sum()
+        # Samples are cell means of supporting points: on the plane within the noise band.
+        pts_i = ps.samples_of(i)
+        band = 4 * 1.5 * 1.425e-3 * pts_i[:, 2].astype(float) ** 2 + 0.01
+        assert len(pts_i) > 10 and np.all(np.abs(pts_i @ ps.normals[i] + ps.offsets[i]) < band)
+        assert np.all(np.linalg.eigvalsh(ps.covariances[i]) > -1e-15)
+        # Radius and area of a wall patch of known pixels: the area is at most the patch's bounding extent.
+        assert 0.0 < ps.areas[i] <= np.pi * ps.radii[i] ** 2 + 0.1
+    assert np.allclose(ps.gravity, np.array([0.0, 0.9, 0.1]) / np.linalg.norm([0.0, 0.9, 0.1]))
+    assert set(res.timings_ms) >= {"backproject", "voxelize", "fit", "weight", "merge", "finalize", "total"}
+    assert ps.labels.shape == depth.shape and ps.labels.dtype == np.int32
+
+
+def test_simulated_frames_within_noise_model_tolerance():
+    sim = pytest.importorskip("sim")
+    from sim.ground_truth import visible_planes_with_ids
+    from sim.scenes import make_scene
+
+    scene = make_scene("office")
+    frames = sim.simulate_frames(scene=scene, trajectory="robot", n_frames=2, noise="kinect", camera="kinect",
+                                 seed=1, width=320, height=240)
+    checked = 0
+    for f in frames:
+        gt, ids = visible_planes_with_ids(f, scene, noise="kinect")
+        ps = extract_planes(f, ExtractionParams()).planes
+        for r, pid in enumerate(ids):
+            if (f.labels == pid).sum() < 3000:
+                continue
+            overlap = [((ps.labels == i) & (f.labels == pid)).sum() for i in range(len(ps))]
+            assert overlap and max(overlap) > 0, f"plane {pid} not found"
+            i = int(np.argmax(overlap))
+            ang, off = plane_errors(np.r_[ps.normals[i], ps.offsets[i]], np.r_[gt.normals[r], gt.offsets[r]])
+            # Tolerance from the noise model: 8 standard deviations of the least-squares fit the ground truth
+            # predicts for these pixels under Kinect noise (plus a small floor).
+            sd_ang = np.degrees(np.sqrt(np.trace(gt.covariances[r][:3, :3])))
+            sd_off = np.sqrt(gt.covariances[r][3, 3])
+            assert ang < 8 * sd_ang + 0.01 and off < 8 * sd_off + 0.001, (pid, ang, sd_ang, off, sd_off)
+            checked += 1
+    assert checked >= 4
+
+
+def test_noise_free_frame_fits_within_a_millimetre():
+    depth, labels, planes = _box_room(noise_coeff=0.0, R=_rot([1.0, 0.2, 0.0], 0.3))
+    ps = extract_planes(DepthFrame(depth, K, 0), ExtractionParams()).planes
+    for k, (i, ang, off) in _matches(ps, labels, planes).items():
+        assert ang < 0.01 and off < 0.001
+        sel = ps.labels == i
+        assert sel.sum() > 0.9 * (labels == k).sum()
+
+
+def test_a_wall_across_many_voxels_is_one_plane_with_merging_and_several_without():
+    depth, labels, planes = _box_room(R=_rot([0.0, 1.0, 0.0], 0.2))
+    frame = DepthFrame(depth, K, 0)
+    merged = extract_planes(frame, ExtractionParams()).planes
+    split = extract_planes(frame, ExtractionParams(merge=False, min_plane_points=20, min_plane_area_m2=0.0)).planes
+    for k in range(1, 7):
+        wall = labels == k
+        if wall.sum() < 0.05 * labels.size:
+            continue
+        # Extracted planes holding a real share (5 %) of the wall's pixels.
+        holders = lambda ps: [i for i in range(len(ps)) if ((ps.labels == i) & wall).sum() > 0.05 * wall.sum()]
+        assert len(holders(merged)) == 1, k
+        assert len([i for i in range(len(split)) if ((split.labels == i) & wall).sum() > 100]) >= 5, k
+
+
+def test_point_order_does_not_change_the_planes():
+    depth, labels, planes = _box_room(R=_rot([0.2, 1.0, 0.0], 0.4))
+    from reloc.extraction.backproject import depth_to_points
+
+    pts, _ = depth_to_points(depth, K)
+    pts = pts.copy()
+    a = extract_planes_from_points(pts).planes
+    perm = np.random.default_rng(0).permutation(len(pts))
+    b = extract_planes_from_points(pts[perm]).planes
+    assert len(a) == len(b) > 3
+    # Sums in another order differ in the last bits; that may move a point sitting exactly on a band edge.
+    assert np.abs(a.counts - b.counts).max() <= 1
+    assert np.allclose(a.normals, b.normals, atol=1e-9) and np.allclose(a.offsets, b.offsets, atol=1e-9)
+    assert np.allclose(a.radii, b.radii, atol=1e-6) and np.allclose(a.areas, b.areas)
+    assert np.allclose(a.sample_points, b.sample_points, atol=1e-5)
+
+
+def test_all_invalid_frame_gives_an_empty_set():
+    depth = np.full((K.height, K.width), np.nan, np.float32)
+    depth[::2] = 0.0
+    depth[1::4] = -1.0
+    depth[3::8] = np.inf
+    res = extract_planes(DepthFrame(depth, K, 0), ExtractionParams())
+    assert len(res.planes) == 0
+    assert res.planes.labels.shape == depth.shape and np.all(res.planes.labels == -1)
+    assert res.stats["points"] == 0
+    assert len(extract_planes_from_points(np.zeros((0, 3))).planes) == 0
+
+
+def test_invalid_depths_never_reach_a_fit():
+    depth, labels, planes = _box_room(R=_rot([0.2, 1.0, 0.0], 0.4))
+    clean = depth.copy()
+    clean[::7, ::5] = 0.0
+    dirty = depth.copy()
+    bad = np.zeros(depth.shape, bool)
+    bad[::7, ::5] = True
+    values = np.array([np.nan, np.inf, -np.inf, -2.0, 0.0, 100.0], np.float32)
+    dirty[bad] = values[np.arange(bad.sum()) % len(values)]
+    a = extract_planes(DepthFrame(clean, K, 0), ExtractionParams()).planes
+    b = extract_planes(DepthFrame(dirty, K, 0), ExtractionParams()).planes
+    assert len(a) == len(b) > 3
+    for name in ("normals", "offsets", "counts", "centroids", "radii", "areas", "covariances"):
+        assert np.array_equal(getattr(a, name), getattr(b, name)), name
+    assert np.all(np.isfinite(b.sample_points)) and np.all(b.labels[bad] == -1)
+
+
+def test_ablation_switches_and_gravity_fallback():
+    depth, labels, planes = _box_room(R=_rot([0.2, 1.0, 0.0], 0.4))
+    frame = DepthFrame(depth, K, 0)
+    base = extract_planes(frame, ExtractionParams())
+    vr_ne = extract_planes(frame, ExtractionParams(adaptive_weights=False))
+    assert len(vr_ne.planes) == len(base.planes)
+    assert np.allclose(base.planes.gravity, [0.0, 1.0, 0.0])  # no gravity in the frame: the camera's +y
+    assert extract_planes(frame, ExtractionParams(gravity_fallback="none")).planes.gravity is None
+    # One extractor reused across frames gives the same planes as fresh calls (no state leaks between frames).
+    ex = PlaneExtractor(ExtractionParams())
+    other, _, _ = _box_room(seed=3)
+    ex.extract(DepthFrame(other, K, 0))
+    again = ex.extract(frame).planes
+    assert np.array_equal(again.normals, base.planes.normals) and np.array_equal(again.labels, base.planes.labels)
+
+
+def test_points_with_a_sensor_origin_and_bad_input():
+    depth, labels, planes = _box_room(R=_rot([0.2, 1.0, 0.0], 0.4))
+    from reloc.extraction.backproject import depth_to_points
+
+    pts, _ = depth_to_points(depth, K)
+    a = extract_planes_from_points(pts).planes
+    shift = np.array([10.0, -3.0, 2.0])
+    b = extract_planes_from_points(pts + shift, sensor_origin=shift, gravity=[0, 0, -1.0]).planes
+    assert len(a) == len(b)
+    # float32 points 10 m away carry ~1 um of rounding, so the planes agree to that level, not to the last bit.
+    assert np.allclose(a.normals, b.normals, atol=1e-4)
+    assert np.allclose(b.offsets, np.einsum("ij,j->i", a.normals, -shift) + a.offsets, atol=1e-3)
+    assert np.allclose(b.gravity, [0, 0, -1.0])
+    with pytest.raises(ValueError, match="points_cam"):
+        extract_planes_from_points(np.zeros((10, 2)))
+    with pytest.raises(ValueError, match="frame"):
+        extract_planes(depth, ExtractionParams())
