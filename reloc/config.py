@@ -78,7 +78,17 @@ class ExtractionConfig(_Section):
     )
     max_thickness_floor_m: float = Field(0.01, ge=0, description="Lower bound of the thickness threshold.")
     max_eigen_ratio: float = Field(
-        0.05, gt=0, le=1, description="Planarity: smallest / middle eigenvalue of the voxel scatter must be below this."
+        0.05, gt=0, le=1,
+        description="Planarity: (smallest eigenvalue - noise variance) / middle eigenvalue of the voxel scatter below this.",
+    )
+    max_normal_std_deg: float = Field(
+        5.0, gt=0, le=90, description="Planarity: angular standard deviation of the voxel normal below this."
+    )
+    min_inlier_fraction: float = Field(
+        0.7, gt=0, le=1, description="Planarity after the robust refit: this share of the voxel's points are inliers."
+    )
+    voxel_fit_max_points: int = Field(
+        256, ge=3, description="Voxels with more points are refit from an even subsample (weights scaled up)."
     )
     adaptive_weights: bool = Field(True, description="Eq. 2-3 position weights (off = the paper's VR-NE).")
     alpha: float = Field(
@@ -86,6 +96,11 @@ class ExtractionConfig(_Section):
     )
     beta: float = Field(2.0, ge=0, description="Eq. 2: decay of exp(-beta (r/r_max)^2) outside sigma (r normalised).")
     noise_weights: bool = Field(True, description="Also weight each point by 1 / sigma_z(z)^2 of the sensor model.")
+    noise_direction: Literal["ray", "normal"] = Field(
+        "ray",
+        description="Depth noise moves points along their viewing ray (depth cameras; planes solved in the unbiased "
+        "ray form a . p = 1) or along the plane normal (the paper's synthetic Table 2 protocol).",
+    )
     irls_iterations: int = Field(3, ge=0, le=50, description="Residual-based robust reweighting passes (0 = off).")
     irls_kernel_sigmas: float = Field(3.0, gt=0, description="Robust kernel width in units of the sensor sigma.")
     noise_model: Literal["kinect", "tof", "stereo", "constant"] = Field(
@@ -96,6 +111,17 @@ class ExtractionConfig(_Section):
     )
     area_patch_m: float = Field(0.1, gt=0, description="Patch edge l for the area estimate (paper, constraint 3).")
     sample_spacing_m: float = Field(0.1, gt=0, description="Spacing of each plane's point sample (projection, overlap).")
+    inlier_sigmas: float = Field(
+        4.0, gt=0, description="A point supports a plane within this many noise sigmas (times the plane's scale)."
+    )
+    refine_boundary: bool = Field(
+        True, description="Points of neighbouring voxels (corners, edges, sparse voxels) may support a plane too."
+    )
+    refine_iterations: int = Field(
+        2, ge=0, le=10,
+        description="Robust passes over the points near each merged plane: refit, then fragments merge again "
+        "(0 = planes straight from the merged voxel moments).",
+    )
     min_plane_points: int = Field(200, ge=3, description="Merged planes with fewer points are dropped.")
     min_plane_area_m2: float = Field(0.04, ge=0, description="Merged planes smaller than this are dropped.")
 
@@ -106,7 +132,14 @@ class MergingConfig(_Section):
     enabled: bool = Field(True, description="Off = the paper's VR-NM (every voxel plane stays separate).")
     grow_max_angle_deg: float = Field(10.0, gt=0, le=90, description="Growth: normals of neighbours within this angle.")
     grow_max_offset_m: float = Field(
-        0.04, gt=0, description="Growth: the neighbour's centroid within this distance of the seed plane."
+        0.04, gt=0, description="Growth: the neighbour's centroid within this distance of the growing plane..."
+    )
+    grow_offset_sigmas: float = Field(
+        2.0, ge=0, description="...or within this many depth sigmas of it, when more (a voxel face moves a centroid)."
+    )
+    grow_angle_noise_sigmas: float = Field(
+        2.0, ge=0,
+        description="Growth and fragments: the angle tolerance is at least atan(this * sigma_z / voxel plane spread).",
     )
     undergrown_max_angle_deg: float = Field(8.0, gt=0, le=90, description="Fragments: normals within this angle.")
     undergrown_max_depth_angle_deg: float = Field(
@@ -115,7 +148,9 @@ class MergingConfig(_Section):
     )
     undergrown_max_offset_m: float = Field(0.05, gt=0, description="Fragments: centroid off the other plane by at most this.")
     undergrown_radius_scale: float = Field(
-        1.5, gt=0, description="Fragments: centroids within the larger plane's radius times this factor."
+        2.0, gt=0,
+        description="Fragments: centroids within the larger plane's radius times this factor (2: the two halves of "
+        "a wall cut by a door are ~1.6 radii apart).",
     )
 
 
