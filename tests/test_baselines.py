@@ -120,3 +120,48 @@ def test_bad_threshold_and_rng_raise():
         pb.ransac_plane(pts, threshold_m=-1.0, rng=np.random.default_rng(0))
     with pytest.raises(ValueError, match="rng"):
         pb.ransac_plane(pts, threshold_m=0.01, rng=0)
+
+
+# ---- the accuracy benchmark's own machinery: synthetic planes and the pixel matching rule --------------------------
+
+import extraction_accuracy as ea  # noqa: E402
+
+
+def test_protocol1_plane_follows_its_stated_law():
+    setup = ea.Protocol1Setup(n_points=4000)
+    law = ea.NOISE_LAWS["kinect"]
+    sp = ea.make_synthetic_plane(setup, law, np.random.default_rng(0))
+    assert sp.points.shape == (4000, 3)
+    assert int(sp.is_outlier.sum()) == 200  # exactly 5 %
+    inl = sp.points[~sp.is_outlier]
+    r = inl @ sp.plane[:3] + sp.plane[3]
+    u = r / sp.sigmas[~sp.is_outlier]  # residuals in units of the stated sigma: standard normal
+    assert abs(u.mean()) < 0.1 and abs(u.std() - 1.0) < 0.05
+    assert setup.depth_min_m - 0.5 < inl[:, 2].min() and inl[:, 2].max() < setup.depth_max_m + 0.5
+    assert sp.plane[3] > 0 and abs(np.linalg.norm(sp.plane[:3]) - 1) < 1e-12
+
+
+def test_match_planes_counts_by_majority_of_pixels():
+    det = np.array([[0, 0, 1, 1, 3],
+                    [0, 0, 1, 1, 3],
+                    [2, 2, -1, -1, 3]])
+    gt = np.array([[5, 5, 5, 7, 0],
+                   [5, 5, 7, 7, 0],
+                   [0, 0, 7, 7, 9]])
+    m = ea.match_planes(det, 4, gt, min_gt_pixels=3)
+    np.testing.assert_array_equal(m["owner"], [5, 7, 0, 9])
+    np.testing.assert_allclose(m["purity"], [1.0, 0.75, 0.0, 1 / 3])
+    np.testing.assert_array_equal(m["tp"], [True, True, False, False])  # 2: unlabelled only, 3: 1/3 < 0.5
+    np.testing.assert_array_equal(m["under"], [False, True, False, False])  # 1 holds a quarter of plane 5
+    np.testing.assert_array_equal(m["gt_ids"], [5, 7, 9])
+    np.testing.assert_array_equal(m["detectable"], [True, True, False])
+    np.testing.assert_array_equal(m["fragments"], [1, 1, 0])
+    np.testing.assert_allclose(m["coverage"], [4 / 5, 3 / 5, 0.0])
+
+
+def test_match_planes_sees_over_segmentation():
+    det = np.array([[0, 0, 1, 1]])
+    gt = np.array([[4, 4, 4, 4]])
+    m = ea.match_planes(det, 2, gt, min_gt_pixels=1)
+    np.testing.assert_array_equal(m["fragments"], [2])
+    np.testing.assert_allclose(m["coverage"], [1.0])
