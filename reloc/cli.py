@@ -16,6 +16,7 @@ COMMANDS: dict[str, str] = {
     "config": "reloc.commands.config_cmd:config",
     "devices": "drivers.commands:devices_cmd",
     "firmware-sim": "firmware_bridge.cli:firmware_sim",
+    "planes": "reloc.extraction.cli:planes",
     "record": "drivers.commands:record_cmd",
     "run": "reloc.live.cli:run",
     "sim": "sim.cli:sim",
