@@ -135,6 +135,7 @@ class _Job:
     t_cap_ns: int
     T_odom_cam: np.ndarray | None
     odometry_kind: str
+    odometry_epoch: int
     T_truth: np.ndarray | None
     request_ids: tuple = ()
 
@@ -286,6 +287,7 @@ class LiveLoop:
         self._verified: tuple[np.ndarray, np.ndarray | None, int, str] | None = None
         self._prev_odom: tuple[str, np.ndarray, int] | None = None  # (kind, T_odom_cam, seq)
         self._odom_reset_pending = False
+        self._odom_epoch = 0  # counts resets of the odometry chain
         self._bad_streak = 0
         self._last_attempt_s: float | None = None
         self._last_ok_s: float | None = None
@@ -422,8 +424,6 @@ class LiveLoop:
             if ok:
                 self.reconnects += 1
                 self._event("source reconnected")
-                with self._lock:
-                    self._window.reset()  # frames across the gap have no common odometry we can trust
                 return True
             self.reconnect_failures += 1
             k += 1
@@ -438,6 +438,8 @@ class LiveLoop:
                         break
                     continue
                 frame, t_cap, tag = item
+                if tag == "reconnect":
+                    self._reset_odometry()  # frames across the gap share no odometry we can trust
                 if tag is not None:
                     self.request_relocalization(tag)
                 self._process(frame, t_cap)
@@ -480,12 +482,10 @@ class LiveLoop:
             lost_trigger = None
             if self._prev_odom is not None and self._prev_odom[0] != odo_kind:
                 # Poses of different odometry sources (bridge, camera, none) cannot be chained in one submap.
-                self._window.reset()
-                self._prev_odom = None
+                self._reset_odometry()
             if self._odom_reset_pending:
                 self._odom_reset_pending = False
-                self._prev_odom = None
-                self._window.reset()
+                self._reset_odometry()
                 self._verified = None
                 lost_trigger = "odometry_reset"
             if T_odom_cam is not None and self._prev_odom is not None and self._prev_odom[0] == odo_kind:
@@ -493,7 +493,7 @@ class LiveLoop:
                 k = max(1, frame.seq - self._prev_odom[2])
                 if is_jump(self._prev_odom[1], T_odom_cam, k * self.params.lost_jump_m, k * self.params.lost_jump_rad):
                     self.odometry_jumps += 1
-                    self._window.reset()
+                    self._reset_odometry()
                     self._verified = None
                     lost_trigger = "odometry_jump"
             self._prev_odom = None if T_odom_cam is None else (odo_kind, T_odom_cam, frame.seq)
@@ -530,7 +530,13 @@ class LiveLoop:
             truth = frame.T_world_cam if frame.pose_source in _TRUTH_SOURCES else None
             self._last_attempt_s = time.monotonic()
             self._mailbox.submit(_Job(trigger, submap, len(self._window), frame.seq, frame.stamp_ns, t_cap,
-                                      T_odom_cam, odo_kind, truth, request_ids))
+                                      T_odom_cam, odo_kind, self._odom_epoch, truth, request_ids))
+
+    def _reset_odometry(self) -> None:
+        """Forget the odometry chain: the window restarts and poses from before cannot be related to later ones."""
+        self._window.reset()
+        self._prev_odom = None
+        self._odom_epoch += 1
 
     def _trigger(self, lost_trigger: str | None) -> tuple[str | None, tuple]:
         with self._lock:
@@ -593,7 +599,9 @@ class LiveLoop:
             self.relocalizations.append(rec)
         now = time.monotonic()
         if ok:
-            self._verified = (T, job.T_odom_cam, job.seq, job.odometry_kind)
+            # A result for a frame from before an odometry reset cannot be propagated with the new odometry.
+            T_odom = job.T_odom_cam if job.odometry_epoch == self._odom_epoch else None
+            self._verified = (T, T_odom, job.seq, job.odometry_kind)
             self._bad_streak = 0
             self._last_ok_s = now
             self.state = "localized"
