@@ -13,9 +13,10 @@ import math
 import numpy as np
 
 from reloc._numba import njit, register_warmup
-from reloc.extraction._kernels_fit import MIN_DEPTH, MIN_INCIDENCE, distance_sigma, noise_weight, point_sigma, tukey_weight
+from reloc.extraction._kernels_fit import MIN_DEPTH, MIN_INCIDENCE
 from reloc.extraction._kernels_linalg import solve_plane, tangent_basis
 from reloc.extraction._kernels_voxel import voxel_lookup
+from reloc.extraction._kernels_voxelfit import _keep
 
 MAX_CANDIDATES = 8
 # Candidates closer than this in angle (cos 20 deg) are not treated as a corner by the refit.
@@ -23,17 +24,16 @@ COS_CORNER = 0.94
 CORNER_BANDS = 1.5
 
 
-@njit
-def _band_u(px, py, pz, p, planes, power, coeff, ray_mode):
-    nx = planes[p, 0]
-    ny = planes[p, 1]
-    nz = planes[p, 2]
-    r = nx * px + ny * py + nz * pz + planes[p, 3]
-    sg = distance_sigma(px, py, pz, nx, ny, nz, point_sigma(pz, power, coeff), ray_mode)
-    return abs(r) / sg
+@njit(error_model="numpy")
+def _sigma_z(z, power, coeff):
+    if power == 2:
+        return coeff * z * z
+    if power == 1:
+        return coeff * z
+    return coeff
 
 
-@njit
+@njit(error_model="numpy")
 def _candidates(v, voxel_key, box, dense, cellmap, tkeys, tvals, plane_of_voxel, neighbours, cand):
     """Distinct planes of voxel ``v`` and (``neighbours``) of its 26 neighbours into ``cand``; returns how many."""
     nc = 0
@@ -69,11 +69,11 @@ def _candidates(v, voxel_key, box, dense, cellmap, tkeys, tvals, plane_of_voxel,
     return nc
 
 
-@njit(fastmath={"reassoc", "contract"})
-def _single_plane_voxel(sorted_pts, a, b, q, planes, band, power, coeff, ray_mode, point_plane, accumulate,
-                        use_noise, refs, acc_w, acc_s, acc_S, acc_n, acc_sum):
-    """:func:`assign_points` for a voxel whose only candidate is plane ``q`` (most voxels): branch-free, so the
-    loop vectorises. Returns the number of points assigned."""
+@njit(fastmath={"reassoc", "contract"}, error_model="numpy")
+def _single_plane_voxel(sorted_pts, point_bits, step, a, b, q, planes, band, power, coeff, ray_mode, point_plane,
+                        accumulate, use_noise, refs, acc_w, acc_s, acc_S, acc_n, acc_sum):
+    """:func:`assign_points` for a voxel whose only candidate is plane ``q`` (most voxels): no corner test and no
+    branches in the loop, so it vectorises. Returns the number of points assigned."""
     nx = planes[q, 0]
     ny = planes[q, 1]
     nz = planes[q, 2]
@@ -87,25 +87,19 @@ def _single_plane_voxel(sorted_pts, a, b, q, planes, band, power, coeff, ray_mod
     W = s0 = s1 = s2 = s3 = s4 = s5 = s6 = s7 = s8 = 0.0
     c0 = c1 = c2 = 0.0
     for j in range(a, b):
+        if step > 1 and not _keep(point_bits, j, step):
+            continue
         px = np.float64(sorted_pts[j, 0])
         py = np.float64(sorted_pts[j, 1])
         pz = np.float64(sorted_pts[j, 2])
         npd = nx * px + ny * py + nz * pz
         r = npd + d
         zz = max(pz, MIN_DEPTH)
-        if power == 2:
-            sz = coeff * zz * zz
-        elif power == 1:
-            sz = coeff * zz
-        else:
-            sz = coeff
+        g = zz / _sigma_z(zz, power, coeff)  # 1 / sigma_z in depth units per metre of depth
         if ray_mode:
-            g = zz / sz
             u = abs(r) * g / max(abs(npd), MIN_INCIDENCE * zz)
-            wn = g * g
         else:
-            u = abs(r) / sz
-            wn = 1.0 / (sz * sz)
+            u = abs(r) * g / zz
         inside = u <= bq
         point_plane[j] = q if inside else -1
         n_in += 1 if inside else 0
@@ -113,7 +107,7 @@ def _single_plane_voxel(sorted_pts, a, b, q, planes, band, power, coeff, ray_mod
             t = max(1.0 - u * u * inv_b2, 0.0)
             w = t * t
             if use_noise:
-                w *= wn
+                w *= g * g if ray_mode else g * g / (zz * zz)
             x = px - rx
             y = py - ry
             z = pz - rz
@@ -149,22 +143,34 @@ def _single_plane_voxel(sorted_pts, a, b, q, planes, band, power, coeff, ray_mod
     return n_in
 
 
-@njit
-def assign_points(sorted_pts, voxel_start, nv, voxel_key, box, dense, cellmap, tkeys, tvals, plane_of_voxel,
-                  planes, band, power, coeff, ray_mode, refine_boundary, point_plane, accumulate, use_noise, refs,
-                  acc_w, acc_s, acc_S, acc_n, acc_sum, acc_amb):
+@njit(error_model="numpy")
+def assign_points(sorted_pts, point_bits, step, voxel_start, nv, voxel_key, box, dense, cellmap, tkeys, tvals,
+                  plane_of_voxel, planes, band, power, coeff, ray_mode, refine_boundary, point_plane, accumulate,
+                  use_noise, refs, acc_w, acc_s, acc_S, acc_n, acc_sum, acc_amb):
     """Plane of every point (sorted order) into ``point_plane`` (-1 for none); returns the number assigned.
 
-    A point supports the candidate plane it is closest to (in sigmas) when within that plane's ``band``. The
+    Per point and candidate plane ``q``: the signed depth error over the depth sigma, ``e_q = z r_q / (n_q . p)
+    / sigma_z`` (``r_q`` the distance to the plane; ``z - e_q sigma_z`` is where the point's pixel ray meets the
+    plane). The distance in sigmas is ``u_q = |e_q|`` for ray noise and ``|r_q| / sigma_z`` for noise along the
+    normal. A point supports the candidate with the smallest ``u`` when within that plane's ``band``. The
     candidates of a voxel are its own plane and, with ``refine_boundary``, the planes of its 26 neighbours (so
     points of corner, edge and sparse voxels, and points pushed across a voxel face by the noise, find their
-    plane). With ``accumulate``, also sums per plane the moments about ``refs[p]`` (P, 3) of its points that are
-    not near another candidate plane (see the comment in the loop) weighted by Tukey's biweight of width ``band``
-    (times the inverse-variance weight with ``use_noise``): ``acc_w`` (P,), ``acc_s`` (P, 3), ``acc_S`` (P, 3, 3),
-    with ``acc_n`` (P,) the points of non-zero weight, ``acc_sum`` (P, 3) their plain sum and ``acc_amb`` (P,) the
-    points left out as near a corner; all zeroed here.
+    plane).
+
+    With ``accumulate``, also sums per plane the moments about ``refs[p]`` (P, 3) of its points weighted by Tukey's
+    biweight of width ``band`` (times the inverse-variance weight with ``use_noise``): ``acc_w`` (P,), ``acc_s``
+    (P, 3), ``acc_S`` (P, 3, 3), with ``acc_n`` (P,) the points of non-zero weight and ``acc_sum`` (P, 3) their
+    plain sum; all zeroed here. Near the intersection of two planes the noise decides which one a point looks
+    closest to, so keeping every point for its nearest plane would cut each plane's noise one-sidedly there and
+    tilt it. A point is left out of the refit (and counted in ``acc_amb``) when its pixel ray meets another,
+    non-parallel candidate within ``CORNER_BANDS`` bands of where it meets its own (``|e_q - e_o|`` small): that
+    uses the noise-free ray, not the noisy depth, so it truncates nothing.
+
+    ``step > 1`` visits only about 1 in ``step`` points (chosen by a hash of their coordinates, ``point_bits`` =
+    ``sorted_pts`` viewed as int32, so not by their order); ``point_plane`` of the others is left as it was.
     """
     cand = np.empty(MAX_CANDIDATES, np.int64)
+    e = np.empty(MAX_CANDIDATES)
     n_planes = planes.shape[0]
     if accumulate:
         for p in range(n_planes):
@@ -186,63 +192,59 @@ def assign_points(sorted_pts, voxel_start, nv, voxel_key, box, dense, cellmap, t
                 point_plane[j] = -1
             continue
         if nc == 1:
-            n_assigned += _single_plane_voxel(sorted_pts, a, b, cand[0], planes, band, power, coeff, ray_mode,
-                                              point_plane, accumulate, use_noise, refs, acc_w, acc_s, acc_S, acc_n,
-                                              acc_sum)
+            n_assigned += _single_plane_voxel(sorted_pts, point_bits, step, a, b, cand[0], planes, band, power,
+                                              coeff, ray_mode, point_plane, accumulate, use_noise, refs, acc_w,
+                                              acc_s, acc_S, acc_n, acc_sum)
             continue
         for j in range(a, b):
+            if step > 1 and not _keep(point_bits, j, step):
+                continue
             px = np.float64(sorted_pts[j, 0])
             py = np.float64(sorted_pts[j, 1])
             pz = np.float64(sorted_pts[j, 2])
+            zz = max(pz, MIN_DEPTH)
+            g = zz / _sigma_z(zz, power, coeff)
             best = -1
             best_u = np.inf
             for k in range(nc):
                 q = cand[k]
-                u = _band_u(px, py, pz, q, planes, power, coeff, ray_mode)
+                npd = planes[q, 0] * px + planes[q, 1] * py + planes[q, 2] * pz
+                r = npd + planes[q, 3]
+                den = npd if abs(npd) >= MIN_INCIDENCE * zz else (MIN_INCIDENCE * zz if npd >= 0.0 else -MIN_INCIDENCE * zz)
+                e[k] = r * g / den
+                u = abs(e[k]) if ray_mode else abs(r) * g / zz
                 if u <= band[q] and u < best_u:
                     best_u = u
-                    best = q
-            point_plane[j] = best
+                    best = k
             if best < 0:
+                point_plane[j] = -1
                 continue
+            q = cand[best]
+            point_plane[j] = q
             n_assigned += 1
             if not accumulate:
                 continue
-            # Near the intersection of two planes the noise decides which plane a point looks closest to, so
-            # keeping it for the nearest would cut each plane's noise one-sidedly there and tilt it. Points whose
-            # pixel ray meets another candidate plane within CORNER_BANDS bands (in depth sigmas) of this one are
-            # left out of the refit: that test uses the noise-free ray, not the noisy depth, so it truncates nothing.
-            q = best
-            nq = planes[q, 0] * px + planes[q, 1] * py + planes[q, 2] * pz
-            if nq == 0.0:
-                continue
-            sz = point_sigma(pz, power, coeff)
-            z_q = -planes[q, 3] * pz / nq
             ambiguous = False
             for k in range(nc):
                 o = cand[k]
-                if o == q:
+                if k == best:
                     continue
                 # Nearly parallel candidates are pieces of one surface (fragments that merge later), not a corner.
                 if (planes[o, 0] * planes[q, 0] + planes[o, 1] * planes[q, 1] + planes[o, 2] * planes[q, 2]
                         > COS_CORNER):
                     continue
-                no = planes[o, 0] * px + planes[o, 1] * py + planes[o, 2] * pz
-                if no == 0.0:
-                    continue
-                z_o = -planes[o, 3] * pz / no
-                if z_o > 0.0 and abs(z_o - z_q) < CORNER_BANDS * band[q] * sz:
+                if abs(e[k] - e[best]) < CORNER_BANDS * band[q]:
                     ambiguous = True
                     break
             if ambiguous:
                 acc_amb[q] += 1
                 continue
-            w = tukey_weight(best_u, band[q])
-            if w <= 0.0:
+            t = 1.0 - best_u * best_u / (band[q] * band[q])
+            if t <= 0.0:
                 continue
+            w = t * t
             if use_noise:
-                sg = distance_sigma(px, py, pz, planes[q, 0], planes[q, 1], planes[q, 2], sz, ray_mode)
-                w *= noise_weight(pz, sz, sg, ray_mode)
+                w *= g * g if ray_mode else g * g / (zz * zz)
             qx = px - refs[q, 0]
             qy = py - refs[q, 1]
             qz = pz - refs[q, 2]
@@ -268,7 +270,7 @@ def assign_points(sorted_pts, voxel_start, nv, voxel_key, box, dense, cellmap, t
     return n_assigned
 
 
-@njit
+@njit(error_model="numpy")
 def solve_planes(acc_w, acc_s, acc_S, refs, ray_mode, planes, wmom, wscat):
     """Refit every plane with a positive weight from moments about ``refs``: ``planes`` (P, 4) updated (normal
     toward the sensor), moments moved to the origin into ``wmom`` (P, 4) ``[W, sum w p]`` and ``wscat`` (P, 3, 3)."""
@@ -294,7 +296,7 @@ def solve_planes(acc_w, acc_s, acc_S, refs, ray_mode, planes, wmom, wscat):
                                   + W * refs[p, i] * refs[p, k])
 
 
-@njit
+@njit(error_model="numpy")
 def plane_point_stats(sorted_pts, point_plane, m, planes, counts, sums, scatters, uvbox):
     """Point count, sum and scatter (about the origin) of each plane's supporting points, and the bounds
     ``[u_min, u_max, v_min, v_max]`` of their in-plane coordinates. Outputs are zeroed here."""
@@ -344,7 +346,7 @@ def plane_point_stats(sorted_pts, point_plane, m, planes, counts, sums, scatters
         scatters[p, 2, 1] = scatters[p, 1, 2]
 
 
-@njit
+@njit(error_model="numpy")
 def grid_shape(uvbox, cell, out):
     """Per plane: first cell ``(iu0, iv0)`` and size ``(nu, nv)`` of the in-plane grid of edge ``cell`` covering
     ``uvbox``; ``out`` (P, 4) int64. Returns the total number of cells."""
@@ -366,7 +368,7 @@ def grid_shape(uvbox, cell, out):
     return total
 
 
-@njit
+@njit(error_model="numpy")
 def plane_extent(sorted_pts, point_plane, m, planes, centroids, area_cell, area_grid, area_off, occupied,
                  sample_cell, sample_grid, sample_off, sample_acc, radii, areas):
     """Radius (largest distance of a supporting point from the centroid), area (occupied ``area_cell`` squares
@@ -421,7 +423,7 @@ def plane_extent(sorted_pts, point_plane, m, planes, centroids, area_cell, area_
         areas[p] = cnt * area_cell * area_cell
 
 
-@njit
+@njit(error_model="numpy")
 def collect_samples(sample_acc, sample_off, keep, sample_points, sample_ptr):
     """Mean point of every occupied sample cell of the planes ``keep`` (in that order) into ``sample_points``
     (float32) with CSR offsets ``sample_ptr`` (len(keep) + 1,); returns the number of samples."""
@@ -440,11 +442,17 @@ def collect_samples(sample_acc, sample_off, keep, sample_points, sample_ptr):
     return k
 
 
-@njit
+@njit(error_model="numpy")
 def write_labels(point_plane, sorted_src, pix, m, remap, width, height, stride, labels):
     """Label image (H * W,) int32: ``remap[plane]`` at the pixel of every supporting point (the whole
     ``stride x stride`` block it stands for), -1 elsewhere."""
     labels[:] = -1
+    if stride == 1:
+        for j in range(m):
+            p = point_plane[j]
+            if p >= 0:
+                labels[pix[sorted_src[j]]] = remap[p]
+        return
     for j in range(m):
         p = point_plane[j]
         if p < 0:
@@ -481,7 +489,8 @@ def _warmup() -> None:
     amb = np.zeros(1, np.int64)
     asum = np.zeros((1, 3))
     for dense in (True, False):
-        assign_points(pts, start, 2, vkey, box, dense, cellmap, tk, tv, np.array([0, -1], np.int32), planes,
+        assign_points(pts, pts.view(np.int32), 1, start, 2, vkey, box, dense, cellmap, tk, tv,
+                      np.array([0, -1], np.int32), planes,
                       np.array([4.0]), 2, 1.425e-3, True, True, pp, True, True, refs, aw, a_s, aS, an, asum, amb)
     for ray in (True, False):
         solve_planes(aw, a_s, aS, refs, ray, planes.copy(), np.zeros((1, 4)), np.zeros((1, 3, 3)))

@@ -26,7 +26,7 @@ MIN_INCIDENCE = 0.05
 MIN_DEPTH = 1e-3
 
 
-@njit
+@njit(error_model="numpy")
 def point_sigma(z, power, coeff):
     """Depth noise sigma (m) at depth ``z`` (m)."""
     z = max(abs(z), MIN_DEPTH)
@@ -37,7 +37,7 @@ def point_sigma(z, power, coeff):
     return coeff * z * z
 
 
-@njit
+@njit(error_model="numpy")
 def distance_sigma(qx, qy, qz, nx, ny, nz, sig_z, ray_mode):
     """Sigma of the point-to-plane distance of a point at ``q`` (relative to the sensor) with depth sigma ``sig_z``."""
     if not ray_mode:
@@ -47,7 +47,7 @@ def distance_sigma(qx, qy, qz, nx, ny, nz, sig_z, ray_mode):
     return sig_z * max(f, MIN_INCIDENCE)
 
 
-@njit
+@njit(error_model="numpy")
 def noise_weight(z, sig_z, sig_dist, ray_mode):
     """Inverse-variance weight of a point for the plane solver of the mode (module docstring)."""
     if ray_mode:
@@ -56,7 +56,7 @@ def noise_weight(z, sig_z, sig_dist, ray_mode):
     return 1.0 / (sig_dist * sig_dist)
 
 
-@njit
+@njit(error_model="numpy")
 def position_weight(rho, alpha, beta):
     """Paper Eq. 2 with ``rho = r / r_max``: ``1 - alpha rho^2`` for ``rho <= 1/2``, ``exp(-beta rho^2)`` beyond."""
     if rho <= 0.5:
@@ -64,7 +64,7 @@ def position_weight(rho, alpha, beta):
     return math.exp(-beta * rho * rho)
 
 
-@njit
+@njit(error_model="numpy")
 def tukey_weight(u, c):
     """Tukey's biweight of the normalised residual ``u`` with width ``c``."""
     t = u / c
@@ -74,7 +74,7 @@ def tukey_weight(u, c):
     return t * t
 
 
-@njit
+@njit(error_model="numpy")
 def _hypothesis_cost(pts, sig_z, sub, nx, ny, nz, d, ray_mode, trunc):
     cost = 0.0
     for k in range(sub.shape[0]):
@@ -90,7 +90,7 @@ def _hypothesis_cost(pts, sig_z, sub, nx, ny, nz, d, ray_mode, trunc):
     return cost
 
 
-@njit
+@njit(error_model="numpy")
 def ransac_start(pts, sig_z, n_hyp, n_sub, trunc, seed, ray_mode):
     """Best of ``n_hyp`` three-point planes by the truncated cost ``sum min(u^2, trunc^2)`` on ``n_sub`` points.
 
@@ -141,7 +141,7 @@ def ransac_start(pts, sig_z, n_hyp, n_sub, trunc, seed, ray_mode):
     return bx, by, bz, bd, found
 
 
-@njit
+@njit(error_model="numpy")
 def _inlier_sphere(pts, u_abs, lim):
     """Centre and largest distance from it of the points with ``u_abs < lim``: the paper's plane centre and r_max."""
     cnt = 0
@@ -169,7 +169,7 @@ def _inlier_sphere(pts, u_abs, lim):
     return cx, cy, cz, max(math.sqrt(r2max), 1e-12)
 
 
-@njit
+@njit(error_model="numpy")
 def robust_fit_points(pts, power, coeff, ray_mode, use_noise, use_position, alpha, beta, use_robust, kernel_c, n_hyp,
                       seed, max_iter, out_plane, out_cov):
     """Robust weighted plane of ``pts`` (N, 3) float64 (sensor at the origin); writes ``out_plane`` (4,) and

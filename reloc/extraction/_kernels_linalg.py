@@ -26,7 +26,7 @@ import numpy as np
 from reloc._numba import njit, register_warmup
 
 
-@njit
+@njit(error_model="numpy")
 def sym_eig3(A, w, V):
     """Eigen decomposition of the symmetric 3x3 ``A`` (float64, destroyed) into ascending ``w`` (3,) and the unit
     eigenvectors as the columns of ``V`` (3, 3)."""
@@ -81,7 +81,7 @@ def sym_eig3(A, w, V):
             j -= 1
 
 
-@njit
+@njit(error_model="numpy")
 def plane_from_moments(W, s, S, ref, A, w, V):
     """Least-squares plane of weighted moments about ``ref`` (see module docstring).
 
@@ -115,7 +115,7 @@ def plane_from_moments(W, s, S, ref, A, w, V):
     return nx, ny, nz, d, max(w[0], 0.0), w[1], w[2]
 
 
-@njit
+@njit(error_model="numpy")
 def solve_sym3(S00, S01, S02, S11, S12, S22, b0, b1, b2):
     """Solve the symmetric 3x3 system ``S x = b`` by cofactors; returns ``(x0, x1, x2, ok)``."""
     c00 = S11 * S22 - S12 * S12
@@ -135,7 +135,7 @@ def solve_sym3(S00, S01, S02, S11, S12, S22, b0, b1, b2):
     return x0, x1, x2, True
 
 
-@njit
+@njit(error_model="numpy")
 def plane_from_moments_ray(W, s, S, ref, A, w, V):
     """Plane from weighted moments about ``ref`` for depth noise along rays from the origin (module docstring).
 
@@ -178,7 +178,7 @@ def plane_from_moments_ray(W, s, S, ref, A, w, V):
     return nx, ny, nz, d, max(l0, 0.0), 0.0, 0.0
 
 
-@njit
+@njit(error_model="numpy")
 def solve_plane(W, s, S, ref, ray_mode, A, w, V):
     """:func:`plane_from_moments_ray` when ``ray_mode`` else :func:`plane_from_moments`."""
     if ray_mode:
@@ -186,7 +186,7 @@ def solve_plane(W, s, S, ref, ray_mode, A, w, V):
     return plane_from_moments(W, s, S, ref, A, w, V)
 
 
-@njit
+@njit(error_model="numpy")
 def plane_covariance_ray(nx, ny, nz, d, W, s, S, ref, n_eff, cov):
     """Covariance (4, 4) of ``(n, d)`` of the ray-mode plane (see :func:`plane_from_moments_ray`) into ``cov``.
 
@@ -239,7 +239,7 @@ def plane_covariance_ray(nx, ny, nz, d, W, s, S, ref, n_eff, cov):
     return s0sq
 
 
-@njit
+@njit(error_model="numpy")
 def tangent_basis(nx, ny, nz):
     """Two unit vectors ``(t1, t2)`` perpendicular to the unit ``n`` and to each other, as six scalars."""
     if abs(nx) < 0.9:
@@ -261,7 +261,7 @@ def tangent_basis(nx, ny, nz):
     return t1x, t1y, t1z, t2x, t2y, t2z
 
 
-@njit
+@njit(error_model="numpy")
 def plane_covariance(nx, ny, nz, d, W, s, S, ref, n_eff, cov):
     """Covariance (4, 4) of ``(nx, ny, nz, d)`` of the weighted least-squares plane, written into ``cov``.
 
@@ -337,7 +337,7 @@ def plane_covariance(nx, ny, nz, d, W, s, S, ref, n_eff, cov):
     return s0sq
 
 
-@njit
+@njit(error_model="numpy")
 def plane_covariances(planes, wmoments, wscatters, n_eff, ray_mode, covs, s0sq):
     """Covariance of every plane from weighted moments about the origin (``wmoments`` (P, 4) ``[W, sum w p]``,
     ``wscatters`` (P, 3, 3)): :func:`plane_covariance_ray` when ``ray_mode`` else :func:`plane_covariance`; writes

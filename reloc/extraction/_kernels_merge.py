@@ -20,7 +20,7 @@ from reloc.extraction._kernels_voxel import voxel_lookup
 from reloc.extraction._kernels_voxelfit import PLANAR
 
 
-@njit
+@njit(error_model="numpy")
 def _refit(r, rmom, rscat, rplane, ray_mode, A, w3, V, zero):
     nx, ny, nz, d, _l0, _l1, _l2 = solve_plane(rmom[r, 0], rmom[r, 1:4], rscat[r], zero, ray_mode, A, w3, V)
     if d < 0.0:
@@ -31,7 +31,7 @@ def _refit(r, rmom, rscat, rplane, ray_mode, A, w3, V, zero):
     rplane[r, 3] = d
 
 
-@njit
+@njit(error_model="numpy")
 def _add_voxel(r, v, wmom, wscat, counts, sums, n_eff, rmom, rscat, rcount, rsum, rneff):
     for i in range(4):
         rmom[r, i] += wmom[v, i]
@@ -43,7 +43,7 @@ def _add_voxel(r, v, wmom, wscat, counts, sums, n_eff, rmom, rscat, rcount, rsum
     rneff[r] += n_eff[v]
 
 
-@njit
+@njit(error_model="numpy")
 def grow_regions(nv, flags, voxel_key, box, dense, cellmap, tkeys, tvals, seed_order, planes, counts, sums, scatters,
                  eig, wmom, wscat, n_eff, radius, ray_mode, power, coeff, max_angle, angle_sigmas, max_offset,
                  offset_sigmas, thick_sigmas, thick_floor, grow, region_of, rmom, rscat, rplane, rcount, rsum, rneff,
@@ -162,14 +162,14 @@ def grow_regions(nv, flags, voxel_key, box, dense, cellmap, tkeys, tvals, seed_o
     return nr
 
 
-@njit
+@njit(error_model="numpy")
 def _region_spread(r, rmom, rscat, A, w3, V, zero):
     """sqrt of the middle eigenvalue of region ``r``'s weighted point covariance (its smaller in-plane extent)."""
     _nx, _ny, _nz, _d, _l0, l1, _l2 = plane_from_moments(rmom[r, 0], rmom[r, 1:4], rscat[r], zero, A, w3, V)
     return math.sqrt(max(l1, 1e-30))
 
 
-@njit
+@njit(error_model="numpy")
 def merge_fragments(nr, rplane, rmom, rscat, rcount, rsum, rneff, rrad, ray_mode, power, coeff, max_angle,
                     angle_sigmas, max_depth_angle, max_offset, offset_sigmas, thick_sigmas, thick_floor,
                     radius_scale, parent, max_rounds):

@@ -19,7 +19,7 @@ from reloc._numba import njit, register_warmup
 EMPTY = -1
 
 
-@njit
+@njit(error_model="numpy")
 def backproject(depth, fx, fy, cx, cy, stride, z_min, z_max, pts, pix):
     """Back-project the valid pixels of ``depth`` (H, W) float32 into ``pts`` (M, 3) float32 and their flat pixel
     index ``v * W + u`` into ``pix`` (M,) int32; returns the number written.
@@ -43,7 +43,7 @@ def backproject(depth, fx, fy, cx, cy, stride, z_min, z_max, pts, pix):
     return m
 
 
-@njit
+@njit(error_model="numpy")
 def backproject_keys(depth, fx, fy, cx, cy, stride, z_min, z_max, inv_size, box, pts, pix, point_key, cellcount):
     """:func:`backproject` that also gives each point its dense voxel key (``point_key``, int64) and counts points
     per cell in ``cellcount`` (``nx*ny*nz`` int32, zeroed here). ``box`` must contain every valid point's cell (for
@@ -81,7 +81,7 @@ def backproject_keys(depth, fx, fy, cx, cy, stride, z_min, z_max, inv_size, box,
     return m
 
 
-@njit
+@njit(error_model="numpy")
 def count_keys(pts, m, inv_size, box, point_key, cellcount):
     """Dense voxel key of each of ``pts[:m]`` into ``point_key`` and points per cell into ``cellcount`` (zeroed)."""
     ncell = box[3] * box[4] * box[5]
@@ -93,7 +93,7 @@ def count_keys(pts, m, inv_size, box, point_key, cellcount):
         cellcount[k] += 1
 
 
-@njit
+@njit(error_model="numpy")
 def scatter_dense(pts, m, point_key, cellmap, box, voxel_key, voxel_start, sorted_pts, sorted_src):
     """Counting sort of ``pts[:m]`` by dense key. Returns the number of voxels ``V``.
 
@@ -130,7 +130,7 @@ def scatter_dense(pts, m, point_key, cellmap, box, voxel_key, voxel_start, sorte
     return nv
 
 
-@njit
+@njit(error_model="numpy")
 def voxel_box(pts, m, inv_size):
     """Integer bounds ``(x0, y0, z0, x1, y1, z1)`` (inclusive) of the voxel coordinates of ``pts[:m]``."""
     x0 = y0 = z0 = np.iinfo(np.int64).max
@@ -148,7 +148,7 @@ def voxel_box(pts, m, inv_size):
     return x0, y0, z0, x1, y1, z1
 
 
-@njit
+@njit(error_model="numpy")
 def _key(px, py, pz, inv_size, box):
     ix = int(math.floor(px * inv_size)) - box[0]
     iy = int(math.floor(py * inv_size)) - box[1]
@@ -156,14 +156,14 @@ def _key(px, py, pz, inv_size, box):
     return (ix * box[4] + iy) * box[5] + iz
 
 
-@njit
+@njit(error_model="numpy")
 def _hash(key, mask):
     # Fibonacci hashing of a non-negative int64 key.
     h = (key * -7046029254386353131) & 0x7FFFFFFFFFFFFFFF  # 0x9E3779B97F4A7C15 as int64
     return (h >> 17) & mask
 
 
-@njit
+@njit(error_model="numpy")
 def hash_find(tkeys, key):
     """Slot of ``key`` in the open-addressing table ``tkeys`` (size a power of two), or -1."""
     mask = tkeys.shape[0] - 1
@@ -177,7 +177,7 @@ def hash_find(tkeys, key):
         s = (s + 1) & mask
 
 
-@njit
+@njit(error_model="numpy")
 def voxelize_hash(pts, m, inv_size, box, tkeys, tvals, point_key, voxel_key, voxel_start, sorted_pts, sorted_src):
     """Group ``pts[:m]`` by voxel through the open-addressing table ``tkeys`` (T int64, filled with -1 here) /
     ``tvals`` (T int32), ``T`` a power of two >= 2 m, for key boxes too large for a dense table. Returns ``V``.
@@ -234,7 +234,7 @@ def voxelize_hash(pts, m, inv_size, box, tkeys, tvals, point_key, voxel_key, vox
     return nv
 
 
-@njit
+@njit(error_model="numpy")
 def voxel_lookup(ix, iy, iz, box, dense, cellmap, tkeys, tvals):
     """Voxel id of the cell ``(ix, iy, iz)`` relative to the box origin, or -1 (outside the box or empty)."""
     if ix < 0 or iy < 0 or iz < 0 or ix >= box[3] or iy >= box[4] or iz >= box[5]:
@@ -248,7 +248,7 @@ def voxel_lookup(ix, iy, iz, box, dense, cellmap, tkeys, tvals):
     return tvals[s]
 
 
-@njit(fastmath={"reassoc", "contract"})
+@njit(fastmath={"reassoc", "contract"}, error_model="numpy")
 def voxel_moments(sorted_pts, voxel_start, nv, counts, sums, scatters):
     """Per voxel: point count, sum of points and sum of ``p p^T`` (about the origin), float64, from the sorted
     points (accumulated about the voxel's first point, which keeps millimetre noise at any distance).

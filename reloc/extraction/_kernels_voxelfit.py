@@ -27,7 +27,7 @@ NOT_PLANAR = 1
 PLANAR = 2
 
 
-@njit
+@njit(error_model="numpy")
 def voxel_pca_planes(counts, sums, scatters, nv, min_points, power, coeff, thick_sigmas, thick_floor, max_ratio,
                      max_normal_std, planes, eig, normal_std, flags):
     """PCA plane and planarity flag of each voxel from its moments.
@@ -72,7 +72,7 @@ def voxel_pca_planes(counts, sums, scatters, nv, min_points, power, coeff, thick
     return n_planar
 
 
-@njit
+@njit(error_model="numpy")
 def _keep(bits, j, step):
     """Whether point ``j`` is in the 1-in-``step`` subsample: a hash of its coordinates' bits, so the choice does not
     depend on the order of the points."""
@@ -81,7 +81,7 @@ def _keep(bits, j, step):
     return h % step == 0
 
 
-@njit
+@njit(error_model="numpy")
 def voxel_weighted_refit(sorted_pts, point_bits, voxel_start, nv, counts, sums, flags, eig, power, coeff, ray_mode,
                          use_noise, use_position, alpha, beta, irls_iterations, kernel_c, max_points, thick_sigmas,
                          thick_floor, max_ratio, max_normal_std, min_inlier_fraction, planes, wmom, wscat, n_eff,

@@ -74,15 +74,19 @@ def assemble_plane_set(
         return PlaneSet.empty(frame=frame, gravity=gravity, labels=labels)
     planes = np.ascontiguousarray(merged.planes)
     band = float(inlier_sigmas) * np.sqrt(np.maximum(merged.variance_factors, 1.0))
-    point_plane = ws.get("as_point_plane", m, np.int32)
     power = noise_law_code(noise_model)
     ray = noise_direction == "ray"
-    z3 = np.zeros((1, 3))
-    kf.assign_points(
-        grid.points, grid.start, len(grid), grid.keys, grid.box, grid.dense, grid.cellmap, grid.tkeys, grid.tvals,
-        merged.plane_of_voxel, planes, band, power, float(noise_coeff), ray, bool(refine_boundary), point_plane,
-        False, False, z3, np.zeros(1), z3, np.zeros((1, 3, 3)), np.zeros(1, np.int64), z3, np.zeros(1, np.int64),
-    )
+    if merged.point_plane is not None and len(merged.point_plane) == m:
+        point_plane = merged.point_plane  # the refinement's last pass already assigned every point
+    else:
+        point_plane = ws.get("as_point_plane", m, np.int32)
+        z3 = np.zeros((1, 3))
+        kf.assign_points(
+            grid.points, grid.points.view(np.int32), 1, grid.start, len(grid), grid.keys, grid.box, grid.dense,
+            grid.cellmap, grid.tkeys, grid.tvals, merged.plane_of_voxel, planes, band, power, float(noise_coeff), ray,
+            bool(refine_boundary), point_plane, False, False, z3, np.zeros(1), z3, np.zeros((1, 3, 3)),
+            np.zeros(1, np.int64), z3, np.zeros(1, np.int64),
+        )
     counts = np.zeros(n_all, np.int64)
     sums = np.zeros((n_all, 3))
     scatters = np.zeros((n_all, 3, 3))

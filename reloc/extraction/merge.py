@@ -34,6 +34,8 @@ class MergedPlanes:
       radii; ``n_voxels`` (P,).
     - ``covariances`` (P, 4, 4) of ``(n, d)`` and ``variance_factors`` (P,) (``s0^2``, 1 for an exact noise law).
     - ``n_fragment_merges``: merges made by the under-grown steps.
+    - ``point_plane``: after a refinement over all points, the plane of every point (sorted order, -1 for none)
+      from that pass, renumbered to these planes (the plane set reuses it instead of assigning the points again).
     """
 
     plane_of_voxel: np.ndarray
@@ -48,6 +50,7 @@ class MergedPlanes:
     covariances: np.ndarray
     variance_factors: np.ndarray
     n_fragment_merges: int
+    point_plane: np.ndarray | None = None
 
     def __len__(self) -> int:
         return int(self.planes.shape[0])
@@ -79,7 +82,8 @@ def _merge_and_pack(plane_of_region, rplane, rmom, rscat, rcount, rsum, rneff, r
                     n_merges_before=0) -> MergedPlanes:
     """Under-grown fragment merging over regions, then the surviving regions packed as :class:`MergedPlanes`.
 
-    ``plane_of_region`` (V,) maps voxels to region indices (-1 for none)."""
+    ``plane_of_region`` (V,) maps voxels to region indices (-1 for none). Returns the planes and the (R,) plane
+    index of every region."""
     nr = rplane.shape[0]
     parent = np.arange(nr, dtype=np.int32)
     n_merges = 0
@@ -103,12 +107,13 @@ def _merge_and_pack(plane_of_region, rplane, rmom, rscat, rcount, rsum, rneff, r
         plane_of_voxel = np.full(reg.shape, -1, np.int32)
     n_voxels = np.bincount(plane_of_voxel[plane_of_voxel >= 0], minlength=len(survivors)).astype(np.int64)
     covs, s0 = plane_covariances(rplane[survivors], rmom[survivors], rscat[survivors], rneff[survivors], ray_mode=ray)
+    region_to_plane = final[root] if nr else np.zeros(0, np.int32)
     return MergedPlanes(
         plane_of_voxel=plane_of_voxel, planes=rplane[survivors], wmoments=rmom[survivors],
         wscatters=rscat[survivors], n_eff=rneff[survivors], counts=rcount[survivors], sums=rsum[survivors],
         radius_bound=rrad[survivors], n_voxels=n_voxels, covariances=covs, variance_factors=s0,
         n_fragment_merges=int(n_merges + n_merges_before),
-    )
+    ), region_to_plane
 
 
 def merge_voxel_planes(
@@ -166,7 +171,7 @@ def merge_voxel_planes(
                                    undergrown_max_depth_angle_rad, undergrown_max_offset_m, grow_offset_sigmas,
                                    max_thickness_sigmas, max_thickness_floor_m, undergrown_radius_scale)
     return _merge_and_pack(region_of[:nv].copy(), rplane[:nr], rmom[:nr], rscat[:nr], rcount[:nr], rsum[:nr],
-                           rneff[:nr], rrad[:nr], merge=merge, ray=ray, fragment_args=fragment_args)
+                           rneff[:nr], rrad[:nr], merge=merge, ray=ray, fragment_args=fragment_args)[0]
 
 
 def refine_merged_planes(
@@ -188,6 +193,7 @@ def refine_merged_planes(
     noise_model: str = "kinect",
     noise_coeff: float = 1.425e-3,
     noise_direction: str = "ray",
+    point_step: int = 1,
     workspace: Workspace | None = None,
 ) -> MergedPlanes:
     """One robust pass over the points near each merged plane: refit, then merge fragments again.
@@ -197,6 +203,8 @@ def refine_merged_planes(
     from its points weighted by Tukey's biweight of that width times the inverse noise variance. This removes what
     the voxel faces did to the merged plane (points the noise pushed into a neighbouring voxel were lost to it) and
     puts fragments of one surface on nearly the same plane, so the under-grown step can now merge them.
+    ``point_step > 1`` refits from about 1 in ``point_step`` points (a cheap first pass); with 1 the pass's
+    assignment of every point is kept in the result (``point_plane``).
     """
     ws = fresh(workspace)
     ray = noise_direction == "ray"
@@ -215,8 +223,8 @@ def refine_merged_planes(
     acc_sum = np.zeros((n, 3))
     acc_amb = np.zeros(n, np.int64)
     kfin.assign_points(
-        grid.points, grid.start, len(grid), grid.keys, grid.box, grid.dense, grid.cellmap, grid.tkeys, grid.tvals,
-        merged.plane_of_voxel, planes, band, noise_law_code(noise_model), float(noise_coeff), ray,
+        grid.points, grid.points.view(np.int32), int(point_step), grid.start, len(grid), grid.keys, grid.box,
+        grid.dense, grid.cellmap, grid.tkeys, grid.tvals, merged.plane_of_voxel, planes, band, noise_law_code(noise_model), float(noise_coeff), ray,
         bool(refine_boundary), point_plane, True, bool(noise_weights), refs, acc_w, acc_s, acc_S, acc_n, acc_sum,
         acc_amb,
     )
@@ -241,6 +249,16 @@ def refine_merged_planes(
     fragment_args = _fragment_args(noise_model, noise_coeff, undergrown_max_angle_rad, grow_angle_noise_sigmas,
                                    undergrown_max_depth_angle_rad, undergrown_max_offset_m, grow_offset_sigmas,
                                    max_thickness_sigmas, max_thickness_floor_m, undergrown_radius_scale)
-    return _merge_and_pack(plane_of_voxel, planes, wmom, wscat, counts.astype(np.int64), sums,
-                           n_eff.astype(np.int64), merged.radius_bound[keep].copy(), merge=merge, ray=ray,
-                           fragment_args=fragment_args, n_merges_before=merged.n_fragment_merges)
+    out, kept_to_final = _merge_and_pack(plane_of_voxel, planes, wmom, wscat, counts.astype(np.int64), sums,
+                          n_eff.astype(np.int64), merged.radius_bound[keep].copy(), merge=merge, ray=ray,
+                          fragment_args=fragment_args, n_merges_before=merged.n_fragment_merges)
+    if point_step != 1:
+        return out
+    # Renumber the pass's assignment: removed bevels lose their points, merged fragments go to their survivor.
+    old_to_kept = np.full(n, -1, np.int32)
+    old_to_kept[keep] = np.arange(int(keep.sum()), dtype=np.int32)
+    table = np.where(old_to_kept >= 0, kept_to_final[np.maximum(old_to_kept, 0)], -1).astype(np.int32)
+    pp = point_plane[:m]
+    valid = pp >= 0
+    pp[valid] = table[pp[valid]]
+    return replace(out, point_plane=pp)
