@@ -165,3 +165,18 @@ def test_match_planes_sees_over_segmentation():
     m = ea.match_planes(det, 2, gt, min_gt_pixels=1)
     np.testing.assert_array_equal(m["fragments"], [2])
     np.testing.assert_allclose(m["coverage"], [1.0])
+
+
+def test_protocol1_ray_noise_moves_points_along_their_rays():
+    setup = ea.Protocol1Setup(n_points=4000)
+    sp = ea.make_synthetic_plane(setup, ea.NOISE_LAWS["kinect-ray"], np.random.default_rng(1))
+    keep = ~sp.is_outlier
+    p, z = sp.points[keep], sp.z_true[keep]
+    # The point stays on the ray of its true position: p / p_z == true / z, so the true point is p * z / p_z.
+    true = p * (z / p[:, 2])[:, None]
+    np.testing.assert_allclose(true @ sp.plane[:3] + sp.plane[3], 0.0, atol=1e-9)
+    u = (p[:, 2] - z) / sp.sigmas[keep]
+    assert abs(u.mean()) < 0.1 and abs(u.std() - 1.0) < 0.05
+    # The oracle on this data lands close to the truth (it is the limit the table quotes).
+    angle_deg, offset_m = plane_errors(ea._oracle(sp), sp.plane)
+    assert angle_deg < 0.2 and offset_m < 0.01
