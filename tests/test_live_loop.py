@@ -291,9 +291,9 @@ def test_requests_are_served_and_stop_joins_every_thread(living_room_map):
                     map_planes=map_planes, on_status=lines.append)
 
     def driver():
-        _wait(lambda: any(r.ok for r in loop.relocalizations))
+        _wait(lambda: any(r.ok for r in loop.records()))
         loop.request_relocalization("manual")
-        _wait(lambda: any("manual" in r.trigger for r in loop.relocalizations) and len(lines) >= 2)
+        _wait(lambda: any("manual" in r.trigger for r in loop.records()) and len(lines) >= 2)
         loop.stop()
 
     t = threading.Thread(target=driver)

@@ -92,7 +92,7 @@ def test_loop_relocalizes_end_to_end_with_the_simulated_firmware(tmp_path, livin
 
     def firmware_side():
         try:
-            assert wait_until(lambda: bridge.clock.synced and any(r.ok for r in loop.relocalizations), 20.0)
+            assert wait_until(lambda: bridge.clock.synced and any(r.ok for r in loop.records()), 20.0)
             mcu.request_relocalization()
             answered.append(wait_until(lambda: any(c.request_id and c.status == PoseStatus.OK
                                                    for c in list(mcu.pose_checks)), 20.0))

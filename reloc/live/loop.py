@@ -101,16 +101,22 @@ class LiveSummary:
     source_events: dict
     odometry: dict
     tracking: dict
-    relocalizations: list[RelocRecord]
+    relocalizations: list[RelocRecord]  # the latest ``LiveLoop.max_records`` (all of them in any normal run)
     latency_ms: dict
     end_to_end_ms: dict
     bridge: dict | None = None
     faults: dict | None = None
     errors: list[str] = field(default_factory=list)
+    relocs_total: int | None = None  # over the whole run (None: as many as listed)
+    relocs_ok_total: int | None = None
 
     @property
     def relocs_ok(self) -> int:
-        return sum(r.ok for r in self.relocalizations)
+        return self.relocs_ok_total if self.relocs_ok_total is not None else sum(r.ok for r in self.relocalizations)
+
+    @property
+    def relocs_count(self) -> int:
+        return self.relocs_total if self.relocs_total is not None else len(self.relocalizations)
 
     def to_dict(self) -> dict:
         return {
@@ -118,7 +124,8 @@ class LiveSummary:
             "frames": self.frames, "source_events": self.source_events, "odometry": self.odometry,
             "tracking": self.tracking,
             "relocalizations_ok": self.relocs_ok,
-            "relocalizations_failed": len(self.relocalizations) - self.relocs_ok,
+            "relocalizations_failed": self.relocs_count - self.relocs_ok,
+            "relocalizations_listed": len(self.relocalizations),
             "relocalizations": [r.to_dict() for r in self.relocalizations],
             "latency_ms": self.latency_ms, "end_to_end_ms": self.end_to_end_ms,
             "bridge": self.bridge, "faults": self.faults, "errors": self.errors,
@@ -277,7 +284,11 @@ class LiveLoop:
         self.odometry_jumps = 0
         self.odometry_resets = 0
         self.lost_events: Counter[str] = Counter()
-        self.relocalizations: list[RelocRecord] = []
+        # The latest records (bounded: a robot lost for hours retries several times a second) and run totals.
+        self.max_records = 20_000
+        self.relocalizations: deque[RelocRecord] = deque(maxlen=self.max_records)
+        self.relocs_total = 0
+        self.relocs_ok_total = 0
         self.events: deque[str] = deque(maxlen=200)
         self.errors: list[str] = []
         self.state = "starting"  # starting | localized | searching
@@ -298,6 +309,11 @@ class LiveLoop:
         """Stop as soon as possible (thread-safe; signal handlers call it)."""
         self._stop.set()
         self._queue.close()
+
+    def records(self) -> list[RelocRecord]:
+        """The relocalizations so far (a copy; safe to call from any thread while the loop runs)."""
+        with self._lock:
+            return list(self.relocalizations)
 
     def request_relocalization(self, trigger: str = "manual", request_id: int = 0) -> None:
         """Relocalize with the next frame's submap (thread-safe); ``request_id`` is answered over serial."""
@@ -590,13 +606,15 @@ class LiveLoop:
         if ok and job.T_truth is not None:
             err_m, err_deg = pose_error(T, job.T_truth)
         rec = RelocRecord(
-            index=len(self.relocalizations), trigger=job.trigger, seq=job.seq, stamp_ns=job.stamp_ns, status=status,
+            index=self.relocs_total, trigger=job.trigger, seq=job.seq, stamp_ns=job.stamp_ns, status=status,
             reason=reason, T_map_cam=T if ok else None, score=score, submap_frames=job.submap_frames,
             submap_planes=len(job.submap), reloc_ms=(t1 - t0) / 1e6, capture_to_pose_ms=cap_to_pose / 1e6,
             request_ids=job.request_ids, position_error_m=err_m, rotation_error_deg=err_deg,
         )
         with self._lock:
             self.relocalizations.append(rec)
+            self.relocs_total += 1
+            self.relocs_ok_total += int(rec.ok)
         now = time.monotonic()
         if ok:
             # A result for a frame from before an odometry reset cannot be propagated with the new odometry.
@@ -677,8 +695,8 @@ class LiveLoop:
             if now >= next_status:
                 next_status = now + 0.5
                 with self._lock:
-                    ok = sum(r.ok for r in self.relocalizations)
-                    failed = len(self.relocalizations) - ok
+                    ok = self.relocs_ok_total
+                    failed = self.relocs_total - ok
                 bridge.send_status(states.get(self.state, HostState.SEARCHING), frames_processed=self.processed,
                                    relocs_ok=ok, relocs_failed=failed, last_error=self.last_error[:60])
 
@@ -792,7 +810,8 @@ class LiveLoop:
             odometry={"used": dict(self.odometry_used), "jumps": self.odometry_jumps, "resets": self.odometry_resets},
             tracking={"lost": dict(self.lost_events), "superseded_requests": self._mailbox.superseded,
                       "final_state": self.state},
-            relocalizations=list(self.relocalizations), latency_ms=latency, end_to_end_ms=e2e, bridge=bridge,
+            relocalizations=self.records(), relocs_total=self.relocs_total,
+            relocs_ok_total=self.relocs_ok_total, latency_ms=latency, end_to_end_ms=e2e, bridge=bridge,
             faults=faults, errors=list(self.errors),
         )
 
