@@ -388,8 +388,9 @@ def test_reloc_run_replays_a_recording_against_a_map_file(tmp_path):
     planes, _ = scene_planes(src.scene)
     save_map(tmp_path / "map.npz", PlaneMap(planes, np.ones(len(planes), dtype=np.int64)))
     out = tmp_path / "run.json"
+    trace = tmp_path / "run.trace.json"
     result = CliRunner().invoke(cli, ["run", "--camera", f"replay:{tmp_path / 'seq'}", "--map", str(tmp_path / "map.npz"),
-                                      "--rate", "fast", "--summary", str(out), "--quiet"])
+                                      "--rate", "fast", "--summary", str(out), "--trace", str(trace), "--quiet"])
     assert result.exit_code == 0, result.output
     s = json.loads(out.read_text())
     assert s["frames"]["captured"] == 12 and s["source_events"]["end"] == "end_of_stream"
@@ -397,3 +398,9 @@ def test_reloc_run_replays_a_recording_against_a_map_file(tmp_path):
     for r in s["relocalizations"]:  # the replayed frames carry their ground truth: errors are measured
         if r["status"] == "relocalized":
             assert r["position_error_m"] < POS_TOL_M and r["rotation_error_deg"] < ROT_TOL_DEG
+    # The Chrome trace has one track per thread of the loop, each with its stages.
+    events = json.loads(trace.read_text())["traceEvents"]
+    tracks = {e["tid"]: e["args"]["name"] for e in events if e["name"] == "thread_name"}
+    assert {"capture", "processing", "relocalization"} <= set(tracks.values())
+    stages = {(tracks[e["tid"]], e["name"].split(".")[0]) for e in events if e["ph"] == "X"}
+    assert {("capture", "capture"), ("processing", "extract"), ("relocalization", "reloc")} <= stages
