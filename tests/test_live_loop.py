@@ -394,6 +394,7 @@ def test_reloc_run_replays_a_recording_against_a_map_file(tmp_path):
     assert result.exit_code == 0, result.output
     s = json.loads(out.read_text())
     assert s["frames"]["captured"] == 12 and s["source_events"]["end"] == "end_of_stream"
+    assert s["config"]["live"]["queue_frames"] == 4 and s["command"]["rate"] == "fast"
     assert s["relocalizations_ok"] >= 1
     for r in s["relocalizations"]:  # the replayed frames carry their ground truth: errors are measured
         if r["status"] == "relocalized":

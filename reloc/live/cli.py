@@ -41,7 +41,7 @@ def run(camera, map_spec, serial_url, frames, duration_s, summary_path, config_p
     import sys
 
     from reloc.atomic import atomic_write_text
-    from reloc.config import load_config
+    from reloc.config import config_as_dict, load_config
     from reloc.live.factory import (
         load_plane_map,
         make_bridge,
@@ -94,7 +94,9 @@ def run(camera, map_spec, serial_url, frames, duration_s, summary_path, config_p
         source.close()
 
     d = summary.to_dict()
-    d["config"] = config_path
+    d["command"] = {"camera": camera, "map": map_spec, "serial": url or None, "frames": frames, "duration_s": duration_s,
+                    "rate": rate, "odometry": odometry, "planes": planes, "config_file": config_path}
+    d["config"] = config_as_dict(cfg)  # the resolved config that produced this run
     if summary_path:
         atomic_write_text(summary_path, json.dumps(d, indent=1) + "\n")
     if trace_path:
