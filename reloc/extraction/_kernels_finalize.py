@@ -69,11 +69,11 @@ def _candidates(v, voxel_key, box, dense, cellmap, tkeys, tvals, plane_of_voxel,
     return nc
 
 
-@njit(fastmath={"reassoc", "contract"}, error_model="numpy")
-def _single_plane_voxel(sorted_pts, point_bits, step, a, b, q, planes, band, power, coeff, ray_mode, point_plane,
-                        accumulate, use_noise, refs, acc_w, acc_s, acc_S, acc_n, acc_sum):
-    """:func:`assign_points` for a voxel whose only candidate is plane ``q`` (most voxels): no corner test and no
-    branches in the loop, so it vectorises. Returns the number of points assigned."""
+@njit(error_model="numpy")
+def _subsample_voxel(sorted_pts, point_bits, step, by_order, a, b, q, planes, band, power, coeff, ray_mode,
+                     use_noise, refs, acc_w, acc_s, acc_S, acc_n, acc_sum):
+    """The refit sums of :func:`_single_plane_voxel` from about 1 in ``step`` points only (every ``step``-th in
+    order with ``by_order``, else by the coordinate hash); assigns nothing."""
     nx = planes[q, 0]
     ny = planes[q, 1]
     nz = planes[q, 2]
@@ -83,70 +83,200 @@ def _single_plane_voxel(sorted_pts, point_bits, step, a, b, q, planes, band, pow
     rx = refs[q, 0]
     ry = refs[q, 1]
     rz = refs[q, 2]
-    n_in = 0
     W = s0 = s1 = s2 = s3 = s4 = s5 = s6 = s7 = s8 = 0.0
-    c0 = c1 = c2 = 0.0
-    for j in range(a, b):
-        if step > 1 and not _keep(point_bits, j, step):
+    c0 = c1 = c2 = cn = 0.0
+    for j in range(a, b, step if by_order else 1):
+        if not by_order and not _keep(point_bits, j, step):
             continue
         px = np.float64(sorted_pts[j, 0])
         py = np.float64(sorted_pts[j, 1])
         pz = np.float64(sorted_pts[j, 2])
         npd = nx * px + ny * py + nz * pz
-        r = npd + d
-        zz = max(pz, MIN_DEPTH)
+        zz = pz if pz > MIN_DEPTH else MIN_DEPTH
+        g = zz / _sigma_z(zz, power, coeff)
+        an = abs(npd)
+        lo = MIN_INCIDENCE * zz
+        den = (an if an > lo else lo) if ray_mode else zz
+        u = abs(npd + d) * g / den
+        t = 1.0 - u * u * inv_b2
+        if t <= 0.0:
+            continue
+        w = t * t
+        if use_noise:
+            w *= g * g if ray_mode else g * g / (zz * zz)
+        x = px - rx
+        y = py - ry
+        z = pz - rz
+        W += w
+        s0 += w * x
+        s1 += w * y
+        s2 += w * z
+        s3 += w * x * x
+        s4 += w * x * y
+        s5 += w * x * z
+        s6 += w * y * y
+        s7 += w * y * z
+        s8 += w * z * z
+        cn += 1.0
+        c0 += px
+        c1 += py
+        c2 += pz
+    acc_w[q] += W
+    acc_s[q, 0] += s0
+    acc_s[q, 1] += s1
+    acc_s[q, 2] += s2
+    acc_S[q, 0, 0] += s3
+    acc_S[q, 0, 1] += s4
+    acc_S[q, 0, 2] += s5
+    acc_S[q, 1, 1] += s6
+    acc_S[q, 1, 2] += s7
+    acc_S[q, 2, 2] += s8
+    acc_n[q] += int(cn)
+    acc_sum[q, 0] += c0
+    acc_sum[q, 1] += c1
+    acc_sum[q, 2] += c2
+
+
+@njit(fastmath={"reassoc", "contract"}, error_model="numpy")
+def _single_plane_voxel(sorted_pts, a, b, q, planes, band, power, coeff, ray_mode, point_plane,
+                        accumulate, use_noise, refs, acc_w, acc_s, acc_S, acc_n, acc_sum, sup, scratch):
+    """:func:`assign_points` for a voxel whose only candidate is plane ``q`` (most voxels): no corner test, and two
+    branch-free loops (distances, then weighted sums) that vectorise. ``scratch`` (>= b - a,) float64. Returns the
+    number of points assigned."""
+    nx = planes[q, 0]
+    ny = planes[q, 1]
+    nz = planes[q, 2]
+    d = planes[q, 3]
+    bq = band[q]
+    n_in = 0
+    for j in range(a, b):
+        px = np.float64(sorted_pts[j, 0])
+        py = np.float64(sorted_pts[j, 1])
+        pz = np.float64(sorted_pts[j, 2])
+        npd = nx * px + ny * py + nz * pz
+        zz = pz if pz > MIN_DEPTH else MIN_DEPTH
         g = zz / _sigma_z(zz, power, coeff)  # 1 / sigma_z in depth units per metre of depth
-        if ray_mode:
-            u = abs(r) * g / max(abs(npd), MIN_INCIDENCE * zz)
-        else:
-            u = abs(r) * g / zz
-        inside = u <= bq
-        point_plane[j] = q if inside else -1
+        an = abs(npd)
+        lo = MIN_INCIDENCE * zz
+        den = (an if an > lo else lo) if ray_mode else zz
+        u = abs(npd + d) * g / den
+        scratch[j - a] = u
+    for j in range(a, b):
+        inside = scratch[j - a] <= bq
         n_in += 1 if inside else 0
-        if accumulate:
-            t = max(1.0 - u * u * inv_b2, 0.0)
-            w = t * t
-            if use_noise:
-                w *= g * g if ray_mode else g * g / (zz * zz)
-            x = px - rx
-            y = py - ry
-            z = pz - rz
-            W += w
-            s0 += w * x
-            s1 += w * y
-            s2 += w * z
-            s3 += w * x * x
-            s4 += w * x * y
-            s5 += w * x * z
-            s6 += w * y * y
-            s7 += w * y * z
-            s8 += w * z * z
-            f = 1.0 if t > 0.0 else 0.0
-            c0 += f * px
-            c1 += f * py
-            c2 += f * pz
-    if accumulate:
-        acc_w[q] += W
-        acc_s[q, 0] += s0
-        acc_s[q, 1] += s1
-        acc_s[q, 2] += s2
-        acc_S[q, 0, 0] += s3
-        acc_S[q, 0, 1] += s4
-        acc_S[q, 0, 2] += s5
-        acc_S[q, 1, 1] += s6
-        acc_S[q, 1, 2] += s7
-        acc_S[q, 2, 2] += s8
-        acc_n[q] += n_in
-        acc_sum[q, 0] += c0
-        acc_sum[q, 1] += c1
-        acc_sum[q, 2] += c2
+        point_plane[j] = q if inside else -1
+    if not accumulate:
+        return n_in
+    inv_b2 = 1.0 / (bq * bq)
+    rx = refs[q, 0]
+    ry = refs[q, 1]
+    rz = refs[q, 2]
+    W = s0 = s1 = s2 = s3 = s4 = s5 = s6 = s7 = s8 = 0.0
+    c0 = c1 = c2 = cn = 0.0
+    h0 = h1 = h2 = h3 = h4 = h5 = h6 = h7 = h8 = h9 = 0.0
+    for j in range(a, b):
+        px = np.float64(sorted_pts[j, 0])
+        py = np.float64(sorted_pts[j, 1])
+        pz = np.float64(sorted_pts[j, 2])
+        u = scratch[j - a]
+        t = 1.0 - u * u * inv_b2
+        t = t if t > 0.0 else 0.0
+        w = t * t
+        if use_noise:
+            zz = pz if pz > MIN_DEPTH else MIN_DEPTH
+            g = zz / _sigma_z(zz, power, coeff)
+            w *= g * g if ray_mode else g * g / (zz * zz)
+        x = px - rx
+        y = py - ry
+        z = pz - rz
+        W += w
+        s0 += w * x
+        s1 += w * y
+        s2 += w * z
+        s3 += w * x * x
+        s4 += w * x * y
+        s5 += w * x * z
+        s6 += w * y * y
+        s7 += w * y * z
+        s8 += w * z * z
+        f = 1.0 if t > 0.0 else 0.0
+        cn += f
+        c0 += f * px
+        c1 += f * py
+        c2 += f * pz
+        # Plain statistics of the supporting points (about the same reference).
+        h = 1.0 if u <= bq else 0.0
+        h0 += h
+        h1 += h * x
+        h2 += h * y
+        h3 += h * z
+        h4 += h * x * x
+        h5 += h * x * y
+        h6 += h * x * z
+        h7 += h * y * y
+        h8 += h * y * z
+        h9 += h * z * z
+    sup[q, 0] += h0
+    sup[q, 1] += h1
+    sup[q, 2] += h2
+    sup[q, 3] += h3
+    sup[q, 4] += h4
+    sup[q, 5] += h5
+    sup[q, 6] += h6
+    sup[q, 7] += h7
+    sup[q, 8] += h8
+    sup[q, 9] += h9
+    acc_w[q] += W
+    acc_s[q, 0] += s0
+    acc_s[q, 1] += s1
+    acc_s[q, 2] += s2
+    acc_S[q, 0, 0] += s3
+    acc_S[q, 0, 1] += s4
+    acc_S[q, 0, 2] += s5
+    acc_S[q, 1, 1] += s6
+    acc_S[q, 1, 2] += s7
+    acc_S[q, 2, 2] += s8
+    acc_n[q] += int(cn)
+    acc_sum[q, 0] += c0
+    acc_sum[q, 1] += c1
+    acc_sum[q, 2] += c2
     return n_in
 
 
 @njit(error_model="numpy")
-def assign_points(sorted_pts, point_bits, step, voxel_start, nv, voxel_key, box, dense, cellmap, tkeys, tvals,
-                  plane_of_voxel, planes, band, power, coeff, ray_mode, refine_boundary, point_plane, accumulate,
-                  use_noise, refs, acc_w, acc_s, acc_S, acc_n, acc_sum, acc_amb):
+def _reachable(v, nc, cand, own, counts, sums, scatters, planes, band, power, coeff):
+    """Keep in ``cand[:nc]`` the voxel's own plane and the planes that can reach its points (see
+    :func:`assign_points`); returns how many are left."""
+    n = counts[v]
+    cx = sums[v, 0] / n
+    cy = sums[v, 1] / n
+    cz = sums[v, 2] / n
+    sz = _sigma_z(max(cz, MIN_DEPTH), power, coeff)
+    k = 0
+    for i in range(nc):
+        q = cand[i]
+        if q != own:
+            nx = planes[q, 0]
+            ny = planes[q, 1]
+            nz = planes[q, 2]
+            S = scatters[v]
+            var = ((nx * (S[0, 0] * nx + S[0, 1] * ny + S[0, 2] * nz) + ny * (S[1, 0] * nx + S[1, 1] * ny + S[1, 2] * nz)
+                    + nz * (S[2, 0] * nx + S[2, 1] * ny + S[2, 2] * nz)) / n
+                   - (nx * cx + ny * cy + nz * cz) ** 2)
+            dist = abs(nx * cx + ny * cy + nz * cz + planes[q, 3])
+            if dist > 3.0 * math.sqrt(max(var, 0.0)) + band[q] * sz + 0.02:
+                continue
+        cand[k] = q
+        k += 1
+    return k
+
+
+@njit(error_model="numpy")
+def assign_points(sorted_pts, point_bits, step, by_order, voxel_start, nv, voxel_key, box, dense, cellmap, tkeys,
+                  tvals,
+                  counts, sums, scatters, plane_of_voxel, planes, band, power, coeff, ray_mode, refine_boundary,
+                  point_plane, accumulate, use_noise, refs, acc_w, acc_s, acc_S, acc_n, acc_sum, acc_amb, sup,
+                  scratch):
     """Plane of every point (sorted order) into ``point_plane`` (-1 for none); returns the number assigned.
 
     Per point and candidate plane ``q``: the signed depth error over the depth sigma, ``e_q = z r_q / (n_q . p)
@@ -160,14 +290,21 @@ def assign_points(sorted_pts, point_bits, step, voxel_start, nv, voxel_key, box,
     With ``accumulate``, also sums per plane the moments about ``refs[p]`` (P, 3) of its points weighted by Tukey's
     biweight of width ``band`` (times the inverse-variance weight with ``use_noise``): ``acc_w`` (P,), ``acc_s``
     (P, 3), ``acc_S`` (P, 3, 3), with ``acc_n`` (P,) the points of non-zero weight and ``acc_sum`` (P, 3) their
-    plain sum; all zeroed here. Near the intersection of two planes the noise decides which one a point looks
+    plain sum; ``sup`` (P, 10) the plain moments ``[n, s (3), S (6 upper)]`` about ``refs`` of the supporting
+    points (those assigned to the plane); all zeroed here. Near the intersection of two planes the noise decides which one a point looks
     closest to, so keeping every point for its nearest plane would cut each plane's noise one-sidedly there and
     tilt it. A point is left out of the refit (and counted in ``acc_amb``) when its pixel ray meets another,
     non-parallel candidate within ``CORNER_BANDS`` bands of where it meets its own (``|e_q - e_o|`` small): that
     uses the noise-free ray, not the noisy depth, so it truncates nothing.
 
-    ``step > 1`` visits only about 1 in ``step`` points (chosen by a hash of their coordinates, ``point_bits`` =
-    ``sorted_pts`` viewed as int32, so not by their order); ``point_plane`` of the others is left as it was.
+    A neighbour's plane is a candidate only where it can reach the voxel's points: its distance to the voxel
+    centroid at most 3 standard deviations of the points along its normal (from the voxel's moments ``counts``,
+    ``sums``, ``scatters``) plus its band (in depth sigmas at the centroid) and 2 cm.
+
+    ``step > 1`` (a power of two, with ``accumulate``) is a cheap refit pass: only about 1 in ``step`` points, every
+    ``step``-th of each voxel with ``by_order`` (a depth image's fixed raster order), else chosen by a hash of their
+    coordinates (``point_bits`` = ``sorted_pts`` viewed as int32) so that the order of a point cloud does not matter;
+    ``point_plane`` is not written. ``scratch`` (>= the largest voxel) float64.
     """
     cand = np.empty(MAX_CANDIDATES, np.int64)
     e = np.empty(MAX_CANDIDATES)
@@ -177,6 +314,8 @@ def assign_points(sorted_pts, point_bits, step, voxel_start, nv, voxel_key, box,
             acc_w[p] = 0.0
             acc_n[p] = 0
             acc_amb[p] = 0
+            for i in range(10):
+                sup[p, i] = 0.0
             for i in range(3):
                 acc_s[p, i] = 0.0
                 acc_sum[p, i] = 0.0
@@ -187,18 +326,28 @@ def assign_points(sorted_pts, point_bits, step, voxel_start, nv, voxel_key, box,
         a = voxel_start[v]
         b = voxel_start[v + 1]
         nc = _candidates(v, voxel_key, box, dense, cellmap, tkeys, tvals, plane_of_voxel, refine_boundary, cand)
+        if nc > 1 or (nc == 1 and plane_of_voxel[v] < 0):
+            nc = _reachable(v, nc, cand, plane_of_voxel[v], counts, sums, scatters, planes, band, power, coeff)
         if nc == 0:
             for j in range(a, b):
                 point_plane[j] = -1
             continue
         if nc == 1:
-            n_assigned += _single_plane_voxel(sorted_pts, point_bits, step, a, b, cand[0], planes, band, power,
-                                              coeff, ray_mode, point_plane, accumulate, use_noise, refs, acc_w,
-                                              acc_s, acc_S, acc_n, acc_sum)
+            if step > 1:
+                _subsample_voxel(sorted_pts, point_bits, step, by_order, a, b, cand[0], planes, band, power, coeff,
+                                 ray_mode, use_noise, refs, acc_w, acc_s, acc_S, acc_n, acc_sum)
+                continue
+            n_assigned += _single_plane_voxel(sorted_pts, a, b, cand[0], planes, band, power, coeff, ray_mode,
+                                              point_plane, accumulate, use_noise, refs, acc_w, acc_s, acc_S, acc_n,
+                                              acc_sum, sup, scratch)
             continue
         for j in range(a, b):
-            if step > 1 and not _keep(point_bits, j, step):
-                continue
+            if step > 1:
+                if by_order:
+                    if (j - a) & (step - 1) != 0:
+                        continue
+                elif not _keep(point_bits, j, step):
+                    continue
             px = np.float64(sorted_pts[j, 0])
             py = np.float64(sorted_pts[j, 1])
             pz = np.float64(sorted_pts[j, 2])
@@ -224,6 +373,19 @@ def assign_points(sorted_pts, point_bits, step, voxel_start, nv, voxel_key, box,
             n_assigned += 1
             if not accumulate:
                 continue
+            x = px - refs[q, 0]
+            y = py - refs[q, 1]
+            z = pz - refs[q, 2]
+            sup[q, 0] += 1.0
+            sup[q, 1] += x
+            sup[q, 2] += y
+            sup[q, 3] += z
+            sup[q, 4] += x * x
+            sup[q, 5] += x * y
+            sup[q, 6] += x * z
+            sup[q, 7] += y * y
+            sup[q, 8] += y * z
+            sup[q, 9] += z * z
             ambiguous = False
             for k in range(nc):
                 o = cand[k]
@@ -297,11 +459,17 @@ def solve_planes(acc_w, acc_s, acc_S, refs, ray_mode, planes, wmom, wscat):
 
 
 @njit(error_model="numpy")
-def plane_point_stats(sorted_pts, point_plane, m, planes, counts, sums, scatters, uvbox):
-    """Point count, sum and scatter (about the origin) of each plane's supporting points, and the bounds
-    ``[u_min, u_max, v_min, v_max]`` of their in-plane coordinates. Outputs are zeroed here."""
+def plane_grids(planes, plane_of_voxel, nv, counts, sums, pad, area_cell, sample_cell, tb, area_grid, sample_grid):
+    """In-plane grids of every plane, sized from its voxels (no pass over the points).
+
+    ``tb`` (P, 6) receives each plane's tangent basis ``(t1, t2)``. A supporting point lies in one of the plane's
+    voxels or in a 26-neighbour of one, so within ``pad`` (3.5 voxel edges) of a voxel centroid: the grids cover
+    the voxel centroids' in-plane bounds plus ``pad``. ``area_grid`` / ``sample_grid`` (P, 4) int64 get the first
+    cell ``(iu0, iv0)`` and the size ``(nu, nv)`` for cells of ``area_cell`` / ``sample_cell``. Returns the total
+    cell counts ``(n_area, n_sample)``.
+    """
     n_planes = planes.shape[0]
-    tb = np.empty((n_planes, 6))
+    box = np.empty((n_planes, 4))
     for p in range(n_planes):
         t1x, t1y, t1z, t2x, t2y, t2z = tangent_basis(planes[p, 0], planes[p, 1], planes[p, 2])
         tb[p, 0] = t1x
@@ -310,13 +478,50 @@ def plane_point_stats(sorted_pts, point_plane, m, planes, counts, sums, scatters
         tb[p, 3] = t2x
         tb[p, 4] = t2y
         tb[p, 5] = t2z
+        box[p, 0] = np.inf
+        box[p, 1] = -np.inf
+        box[p, 2] = np.inf
+        box[p, 3] = -np.inf
+    for v in range(nv):
+        p = plane_of_voxel[v]
+        if p < 0:
+            continue
+        cx = sums[v, 0] / counts[v]
+        cy = sums[v, 1] / counts[v]
+        cz = sums[v, 2] / counts[v]
+        u = tb[p, 0] * cx + tb[p, 1] * cy + tb[p, 2] * cz
+        w = tb[p, 3] * cx + tb[p, 4] * cy + tb[p, 5] * cz
+        box[p, 0] = min(box[p, 0], u)
+        box[p, 1] = max(box[p, 1], u)
+        box[p, 2] = min(box[p, 2], w)
+        box[p, 3] = max(box[p, 3], w)
+    n_area = 0
+    n_sample = 0
+    for p in range(n_planes):
+        if not box[p, 1] >= box[p, 0]:
+            for k in range(4):
+                area_grid[p, k] = 0
+                sample_grid[p, k] = 0
+            continue
+        for grid, cell in ((area_grid, area_cell), (sample_grid, sample_cell)):
+            i0 = int(math.floor((box[p, 0] - pad) / cell))
+            j0 = int(math.floor((box[p, 2] - pad) / cell))
+            grid[p, 0] = i0
+            grid[p, 1] = j0
+            grid[p, 2] = int(math.floor((box[p, 1] + pad) / cell)) - i0 + 1
+            grid[p, 3] = int(math.floor((box[p, 3] + pad) / cell)) - j0 + 1
+        n_area += area_grid[p, 2] * area_grid[p, 3]
+        n_sample += sample_grid[p, 2] * sample_grid[p, 3]
+    return n_area, n_sample
+
+
+@njit(error_model="numpy")
+def plane_stats(sorted_pts, point_plane, m, counts, sums, scatters):
+    """Count, sum and scatter (about the origin) of each plane's supporting points; outputs zeroed here."""
+    for p in range(counts.shape[0]):
         counts[p] = 0
         sums[p, :] = 0.0
         scatters[p, :, :] = 0.0
-        uvbox[p, 0] = np.inf
-        uvbox[p, 1] = -np.inf
-        uvbox[p, 2] = np.inf
-        uvbox[p, 3] = -np.inf
     for j in range(m):
         p = point_plane[j]
         if p < 0:
@@ -334,62 +539,32 @@ def plane_point_stats(sorted_pts, point_plane, m, planes, counts, sums, scatters
         scatters[p, 1, 1] += y * y
         scatters[p, 1, 2] += y * z
         scatters[p, 2, 2] += z * z
-        u = tb[p, 0] * x + tb[p, 1] * y + tb[p, 2] * z
-        v = tb[p, 3] * x + tb[p, 4] * y + tb[p, 5] * z
-        uvbox[p, 0] = min(uvbox[p, 0], u)
-        uvbox[p, 1] = max(uvbox[p, 1], u)
-        uvbox[p, 2] = min(uvbox[p, 2], v)
-        uvbox[p, 3] = max(uvbox[p, 3], v)
-    for p in range(n_planes):
+    for p in range(counts.shape[0]):
         scatters[p, 1, 0] = scatters[p, 0, 1]
         scatters[p, 2, 0] = scatters[p, 0, 2]
         scatters[p, 2, 1] = scatters[p, 1, 2]
 
 
 @njit(error_model="numpy")
-def grid_shape(uvbox, cell, out):
-    """Per plane: first cell ``(iu0, iv0)`` and size ``(nu, nv)`` of the in-plane grid of edge ``cell`` covering
-    ``uvbox``; ``out`` (P, 4) int64. Returns the total number of cells."""
-    total = 0
-    for p in range(uvbox.shape[0]):
-        if not uvbox[p, 1] >= uvbox[p, 0]:
-            out[p, 0] = 0
-            out[p, 1] = 0
-            out[p, 2] = 0
-            out[p, 3] = 0
-            continue
-        iu0 = int(math.floor(uvbox[p, 0] / cell))
-        iv0 = int(math.floor(uvbox[p, 2] / cell))
-        out[p, 0] = iu0
-        out[p, 1] = iv0
-        out[p, 2] = int(math.floor(uvbox[p, 1] / cell)) - iu0 + 1
-        out[p, 3] = int(math.floor(uvbox[p, 3] / cell)) - iv0 + 1
-        total += out[p, 2] * out[p, 3]
-    return total
+def plane_extent(sorted_pts, point_plane, m, centroids, tb, area_cell, area_grid, area_off, occupied, sample_cell,
+                 sample_grid, sample_off, sample_acc, radii, areas, with_labels, sorted_src, pix, remap, width, height,
+                 stride, labels):
+    """One pass over the supporting points: radius of each plane (largest distance from its centroid), its occupied
+    ``area_cell`` squares (``areas`` = their number times ``area_cell^2``), per-cell point sums for the samples
+    (``sample_acc`` rows ``[n, sx, sy, sz]``) and, ``with_labels``, the label image (H * W,) int32: ``remap[plane]``
+    at the pixel of every supporting point (the whole ``stride x stride`` block it stands for), -1 elsewhere.
 
-
-@njit(error_model="numpy")
-def plane_extent(sorted_pts, point_plane, m, planes, centroids, area_cell, area_grid, area_off, occupied,
-                 sample_cell, sample_grid, sample_off, sample_acc, radii, areas):
-    """Radius (largest distance of a supporting point from the centroid), area (occupied ``area_cell`` squares
-    times ``area_cell^2``) and per-cell point sums for the samples (``sample_acc`` rows ``[n, sx, sy, sz]``).
-
-    ``area_grid`` / ``sample_grid`` (P, 4) from :func:`grid_shape`, ``area_off`` / ``sample_off`` (P + 1,) offsets of
-    each plane's cells into ``occupied`` (uint8) / ``sample_acc`` (float64, 4 per cell); both zeroed here.
+    Grids from :func:`plane_grids` (``tb`` the tangent bases), ``area_off`` / ``sample_off`` (P + 1,) the offsets of
+    each plane's cells into ``occupied`` (uint8) / ``sample_acc``; outputs zeroed here. The grids contain every
+    supporting point by construction; a point outside would be clamped to the border cell.
     """
-    n_planes = planes.shape[0]
-    tb = np.empty((n_planes, 6))
+    n_planes = tb.shape[0]
     for p in range(n_planes):
-        t1x, t1y, t1z, t2x, t2y, t2z = tangent_basis(planes[p, 0], planes[p, 1], planes[p, 2])
-        tb[p, 0] = t1x
-        tb[p, 1] = t1y
-        tb[p, 2] = t1z
-        tb[p, 3] = t2x
-        tb[p, 4] = t2y
-        tb[p, 5] = t2z
         radii[p] = 0.0
     occupied[: area_off[n_planes]] = 0
     sample_acc[: sample_off[n_planes], :] = 0.0
+    if with_labels:
+        labels[:] = -1
     inv_a = 1.0 / area_cell
     inv_s = 1.0 / sample_cell
     for j in range(m):
@@ -405,22 +580,81 @@ def plane_extent(sorted_pts, point_plane, m, planes, centroids, area_cell, area_
         radii[p] = max(radii[p], dx * dx + dy * dy + dz * dz)
         u = tb[p, 0] * x + tb[p, 1] * y + tb[p, 2] * z
         v = tb[p, 3] * x + tb[p, 4] * y + tb[p, 5] * z
-        iu = min(max(int(math.floor(u * inv_a)) - area_grid[p, 0], 0), area_grid[p, 2] - 1)
-        iv = min(max(int(math.floor(v * inv_a)) - area_grid[p, 1], 0), area_grid[p, 3] - 1)
+        # Offsets from the grid corner are >= 0 inside the grid, where int() is floor().
+        iu = min(max(int(u * inv_a - area_grid[p, 0]), 0), area_grid[p, 2] - 1)
+        iv = min(max(int(v * inv_a - area_grid[p, 1]), 0), area_grid[p, 3] - 1)
         occupied[area_off[p] + iu * area_grid[p, 3] + iv] = 1
-        iu = min(max(int(math.floor(u * inv_s)) - sample_grid[p, 0], 0), sample_grid[p, 2] - 1)
-        iv = min(max(int(math.floor(v * inv_s)) - sample_grid[p, 1], 0), sample_grid[p, 3] - 1)
+        iu = min(max(int(u * inv_s - sample_grid[p, 0]), 0), sample_grid[p, 2] - 1)
+        iv = min(max(int(v * inv_s - sample_grid[p, 1]), 0), sample_grid[p, 3] - 1)
         c = sample_off[p] + iu * sample_grid[p, 3] + iv
         sample_acc[c, 0] += 1.0
         sample_acc[c, 1] += x
         sample_acc[c, 2] += y
         sample_acc[c, 3] += z
+        if not with_labels:
+            continue
+        q = remap[p]
+        k = pix[sorted_src[j]]
+        if stride == 1:
+            labels[k] = q
+            continue
+        if q < 0:
+            continue
+        v0 = k // width
+        u0 = k % width
+        for vv in range(v0, min(v0 + stride, height)):
+            for uu in range(u0, min(u0 + stride, width)):
+                labels[vv * width + uu] = q
     for p in range(n_planes):
         radii[p] = math.sqrt(radii[p])
         cnt = 0
         for c in range(area_off[p], area_off[p + 1]):
             cnt += occupied[c]
         areas[p] = cnt * area_cell * area_cell
+
+
+@njit(error_model="numpy")
+def support_moments(sup, refs, table, n_out, counts, sums, scatters):
+    """Plain moments about the origin of each output plane from ``sup`` (P, 10) about ``refs`` (see
+    :func:`assign_points`), plane ``p`` going to ``table[p]`` (-1: dropped); outputs (n_out,...) zeroed here."""
+    for o in range(n_out):
+        counts[o] = 0
+        sums[o, :] = 0.0
+        scatters[o, :, :] = 0.0
+    for p in range(sup.shape[0]):
+        o = table[p]
+        if o < 0:
+            continue
+        n = sup[p, 0]
+        rx = refs[p, 0]
+        ry = refs[p, 1]
+        rz = refs[p, 2]
+        sx = sup[p, 1]
+        sy = sup[p, 2]
+        sz = sup[p, 3]
+        counts[o] += int(round(n))
+        sums[o, 0] += sx + n * rx
+        sums[o, 1] += sy + n * ry
+        sums[o, 2] += sz + n * rz
+        scatters[o, 0, 0] += sup[p, 4] + 2.0 * sx * rx + n * rx * rx
+        scatters[o, 0, 1] += sup[p, 5] + sx * ry + rx * sy + n * rx * ry
+        scatters[o, 0, 2] += sup[p, 6] + sx * rz + rx * sz + n * rx * rz
+        scatters[o, 1, 1] += sup[p, 7] + 2.0 * sy * ry + n * ry * ry
+        scatters[o, 1, 2] += sup[p, 8] + sy * rz + ry * sz + n * ry * rz
+        scatters[o, 2, 2] += sup[p, 9] + 2.0 * sz * rz + n * rz * rz
+    for o in range(n_out):
+        scatters[o, 1, 0] = scatters[o, 0, 1]
+        scatters[o, 2, 0] = scatters[o, 0, 2]
+        scatters[o, 2, 1] = scatters[o, 1, 2]
+
+
+@njit(error_model="numpy")
+def remap_points(point_plane, m, table):
+    """``point_plane[:m]`` renumbered through ``table`` (-1 stays -1)."""
+    for j in range(m):
+        p = point_plane[j]
+        if p >= 0:
+            point_plane[j] = table[p]
 
 
 @njit(error_model="numpy")
@@ -440,32 +674,6 @@ def collect_samples(sample_acc, sample_off, keep, sample_points, sample_ptr):
                 k += 1
         sample_ptr[i + 1] = k
     return k
-
-
-@njit(error_model="numpy")
-def write_labels(point_plane, sorted_src, pix, m, remap, width, height, stride, labels):
-    """Label image (H * W,) int32: ``remap[plane]`` at the pixel of every supporting point (the whole
-    ``stride x stride`` block it stands for), -1 elsewhere."""
-    labels[:] = -1
-    if stride == 1:
-        for j in range(m):
-            p = point_plane[j]
-            if p >= 0:
-                labels[pix[sorted_src[j]]] = remap[p]
-        return
-    for j in range(m):
-        p = point_plane[j]
-        if p < 0:
-            continue
-        q = remap[p]
-        if q < 0:
-            continue
-        k = pix[sorted_src[j]]
-        v0 = k // width
-        u0 = k % width
-        for v in range(v0, min(v0 + stride, height)):
-            for u in range(u0, min(u0 + stride, width)):
-                labels[v * width + u] = q
 
 
 @register_warmup
@@ -489,31 +697,35 @@ def _warmup() -> None:
     amb = np.zeros(1, np.int64)
     asum = np.zeros((1, 3))
     for dense in (True, False):
-        assign_points(pts, pts.view(np.int32), 1, start, 2, vkey, box, dense, cellmap, tk, tv,
-                      np.array([0, -1], np.int32), planes,
-                      np.array([4.0]), 2, 1.425e-3, True, True, pp, True, True, refs, aw, a_s, aS, an, asum, amb)
+        for step, by_order in ((1, False), (4, True), (4, False)):
+            assign_points(pts, pts.view(np.int32), step, by_order, start, 2, vkey, box, dense, cellmap, tk, tv,
+                          np.array([15, 15], np.int64), pts[:2].astype(np.float64) * 15, np.tile(np.eye(3), (2, 1, 1)) * 60,
+                          np.array([0, -1], np.int32), planes, np.array([4.0]), 2, 1.425e-3, True, True, pp, True, True,
+                          refs, aw, a_s, aS, an, asum, amb, np.zeros((1, 10)), np.empty(m))
     for ray in (True, False):
         solve_planes(aw, a_s, aS, refs, ray, planes.copy(), np.zeros((1, 4)), np.zeros((1, 3, 3)))
     counts = np.zeros(1, np.int64)
     sums = np.zeros((1, 3))
     scat = np.zeros((1, 3, 3))
-    uvbox = np.zeros((1, 4))
-    plane_point_stats(pts, pp, m, planes, counts, sums, scat, uvbox)
+    tb = np.zeros((1, 6))
     ag = np.zeros((1, 4), np.int64)
     sg = np.zeros((1, 4), np.int64)
-    na = grid_shape(uvbox, 0.1, ag)
-    ns = grid_shape(uvbox, 0.1, sg)
+    na, ns = plane_grids(planes, np.array([0, -1], np.int32), 2, np.array([15, 15], np.int64),
+                         pts[:2].astype(np.float64) * 15, 0.8, 0.1, 0.1, tb, ag, sg)
     aoff = np.array([0, na], np.int64)
     soff = np.array([0, ns], np.int64)
-    occ = np.zeros(na, np.uint8)
-    acc = np.zeros((ns, 4))
-    cent = sums / max(counts[0], 1)
-    radii = np.zeros(1)
+    occ = np.zeros(max(na, 1), np.uint8)
+    acc = np.zeros((max(ns, 1), 4))
     areas = np.zeros(1)
-    plane_extent(pts, pp, m, planes, cent, 0.1, ag, aoff, occ, 0.1, sg, soff, acc, radii, areas)
-    sp = np.zeros((ns, 3), np.float32)
+    plane_stats(pts, pp, m, counts, sums, scat)
+    support_moments(np.ones((1, 10)), np.zeros((1, 3)), np.array([0], np.int32), 1, counts, sums, scat)
+    remap_points(pp, m, np.array([0], np.int32))
+    labels = np.empty(20, np.int32)
+    cent = sums / max(counts[0], 1)
+    for stride in (1, 2):
+        plane_extent(pts, pp, m, cent, tb, 0.1, ag, aoff, occ, 0.1, sg, soff, acc, np.zeros(1), areas, True,
+                     np.arange(m).astype(np.int32) % 20, np.arange(20).astype(np.int32), np.array([0], np.int32), 5, 4,
+                     stride, labels)
+    sp = np.zeros((max(ns, 1), 3), np.float32)
     ptr = np.zeros(2, np.int64)
     collect_samples(acc, soff, np.array([0], np.int64), sp, ptr)
-    labels = np.empty(20, np.int32)
-    write_labels(pp, np.arange(m).astype(np.int32) % 20, np.arange(20).astype(np.int32), m,
-                 np.array([0], np.int32), 5, 4, 1, labels)

@@ -74,11 +74,60 @@ def voxel_pca_planes(counts, sums, scatters, nv, min_points, power, coeff, thick
 
 @njit(error_model="numpy")
 def _keep(bits, j, step):
-    """Whether point ``j`` is in the 1-in-``step`` subsample: a hash of its coordinates' bits, so the choice does not
-    depend on the order of the points."""
-    h = (np.int64(bits[j, 0]) * 2654435761) ^ (np.int64(bits[j, 1]) * 2246822519) ^ (np.int64(bits[j, 2]) * 3266489917)
-    h = (h >> 13) & 0x7FFFFFFF
-    return h % step == 0
+    """Whether point ``j`` is in the 1-in-``step`` subsample (``step`` a power of two): a hash of its coordinates'
+    bits, so the choice does not depend on the order of the points."""
+    # The low mantissa bits of measured coordinates are as good as random, and cheap to mix.
+    return ((bits[j, 0] ^ bits[j, 1] ^ bits[j, 2]) >> 1) & (step - 1) == 0
+
+
+@njit(error_model="numpy")
+def pow2_step(n, max_points):
+    """Smallest power of two ``k`` with ``n / k <= max_points``."""
+    k = 1
+    while n > k * max_points:
+        k *= 2
+    return k
+
+
+@njit(fastmath={"reassoc", "contract"}, error_model="numpy")
+def _weighted_pass(qx, qy, qz, base, gz, mloc, nx, ny, nz, e0, d, cz, use_robust, ray_mode, inv_lim2):
+    """Weighted moments of one IRLS pass over a voxel's local points (branch-free, so it vectorises): returns
+    ``(W, s (3), S (6 upper), n_nonzero, sum wr u^2, sum wr)``."""
+    W = s0 = s1 = s2 = s00 = s01 = s02 = s11 = s12 = s22 = 0.0
+    su2 = sw = 0.0
+    ne = 0
+    for k in range(mloc):
+        x = qx[k]
+        y = qy[k]
+        z = qz[k]
+        wi = base[k]
+        if use_robust:
+            npq = nx * x + ny * y + nz * z
+            if ray_mode:
+                zz = z + cz
+                zz = zz if zz > 1e-3 else 1e-3
+                an = abs(npq + e0)
+                lo = MIN_INCIDENCE * zz
+                u = (npq + e0 + d) * gz[k] / (an if an > lo else lo)
+            else:
+                u = (npq + e0 + d) * gz[k]
+            t = 1.0 - u * u * inv_lim2
+            wr = t * t if t > 0.0 else 0.0
+            su2 += wr * u * u
+            sw += wr
+            wi *= wr
+        ne += 1 if wi > 0.0 else 0
+        W += wi
+        s0 += wi * x
+        s1 += wi * y
+        s2 += wi * z
+        s00 += wi * x * x
+        s01 += wi * x * y
+        s02 += wi * x * z
+        s11 += wi * y * y
+        s12 += wi * y * z
+        s22 += wi * z * z
+    return W, s0, s1, s2, s00, s01, s02, s11, s12, s22, ne, su2, sw
 
 
 @njit(error_model="numpy")
@@ -135,7 +184,7 @@ def voxel_weighted_refit(sorted_pts, point_bits, voxel_start, nv, counts, sums, 
         a = voxel_start[v]
         b = voxel_start[v + 1]
         cnt = counts[v]
-        step = max(1, (b - a + max_points - 1) // max_points)
+        step = pow2_step(b - a, max_points)
         cx = sums[v, 0] / cnt
         cy = sums[v, 1] / cnt
         cz = sums[v, 2] / cnt
@@ -188,44 +237,19 @@ def voxel_weighted_refit(sorted_pts, point_bits, voxel_start, nv, counts, sums, 
         sw = 0.0
         l0 = l1 = 0.0
         for _it in range(n_pass):
-            W = 0.0
-            s[:] = 0.0
-            S[:, :] = 0.0
-            ne = 0
-            su2 = 0.0
-            sw = 0.0
             inv_lim2 = 1.0 / (kernel_c * scale) ** 2
             e0 = nx * cx + ny * cy + nz * cz
-            for k in range(mloc):
-                x = qx[k]
-                y = qy[k]
-                z = qz[k]
-                wi = base[k]
-                if use_robust:
-                    npq = nx * x + ny * y + nz * z
-                    if ray_mode:
-                        zz = max(z + cz, 1e-3)
-                        u = (npq + e0 + d) * gz[k] / max(abs(npq + e0), MIN_INCIDENCE * zz)
-                    else:
-                        u = (npq + e0 + d) * gz[k]
-                    t = 1.0 - u * u * inv_lim2
-                    wr = t * t if t > 0.0 else 0.0
-                    su2 += wr * u * u
-                    sw += wr
-                    wi *= wr
-                if wi <= 0.0:
-                    continue
-                ne += 1
-                W += wi
-                s[0] += wi * x
-                s[1] += wi * y
-                s[2] += wi * z
-                S[0, 0] += wi * x * x
-                S[0, 1] += wi * x * y
-                S[0, 2] += wi * x * z
-                S[1, 1] += wi * y * y
-                S[1, 2] += wi * y * z
-                S[2, 2] += wi * z * z
+            W, s0, s1, s2, s00, s01, s02, s11, s12, s22, ne, su2, sw = _weighted_pass(
+                qx, qy, qz, base, gz, mloc, nx, ny, nz, e0, d, cz, use_robust, ray_mode, inv_lim2)
+            s[0] = s0
+            s[1] = s1
+            s[2] = s2
+            S[0, 0] = s00
+            S[0, 1] = s01
+            S[0, 2] = s02
+            S[1, 1] = s11
+            S[1, 2] = s12
+            S[2, 2] = s22
             if ne < 3:
                 break
             S[1, 0] = S[0, 1]

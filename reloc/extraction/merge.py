@@ -35,7 +35,9 @@ class MergedPlanes:
     - ``covariances`` (P, 4, 4) of ``(n, d)`` and ``variance_factors`` (P,) (``s0^2``, 1 for an exact noise law).
     - ``n_fragment_merges``: merges made by the under-grown steps.
     - ``point_plane``: after a refinement over all points, the plane of every point (sorted order, -1 for none)
-      from that pass, renumbered to these planes (the plane set reuses it instead of assigning the points again).
+      from that pass, renumbered to these planes (the plane set reuses it instead of assigning the points again),
+      and ``support`` = ``(counts (P,), sums (P, 3), scatters (P, 3, 3))`` the plain moments about the origin of
+      the points it assigned to each plane.
     """
 
     plane_of_voxel: np.ndarray
@@ -51,6 +53,7 @@ class MergedPlanes:
     variance_factors: np.ndarray
     n_fragment_merges: int
     point_plane: np.ndarray | None = None
+    support: tuple | None = None
 
     def __len__(self) -> int:
         return int(self.planes.shape[0])
@@ -194,6 +197,7 @@ def refine_merged_planes(
     noise_coeff: float = 1.425e-3,
     noise_direction: str = "ray",
     point_step: int = 1,
+    ordered: bool = False,
     workspace: Workspace | None = None,
 ) -> MergedPlanes:
     """One robust pass over the points near each merged plane: refit, then merge fragments again.
@@ -203,7 +207,8 @@ def refine_merged_planes(
     from its points weighted by Tukey's biweight of that width times the inverse noise variance. This removes what
     the voxel faces did to the merged plane (points the noise pushed into a neighbouring voxel were lost to it) and
     puts fragments of one surface on nearly the same plane, so the under-grown step can now merge them.
-    ``point_step > 1`` refits from about 1 in ``point_step`` points (a cheap first pass); with 1 the pass's
+    ``point_step > 1`` (a power of two) refits from about 1 in ``point_step`` points (a cheap first pass; every
+    ``point_step``-th of a voxel when ``ordered``, as the points of a depth image are); with 1 the pass's
     assignment of every point is kept in the result (``point_plane``).
     """
     ws = fresh(workspace)
@@ -222,11 +227,13 @@ def refine_merged_planes(
     acc_n = np.zeros(n, np.int64)
     acc_sum = np.zeros((n, 3))
     acc_amb = np.zeros(n, np.int64)
+    sup = np.zeros((n, 10))
     kfin.assign_points(
-        grid.points, grid.points.view(np.int32), int(point_step), grid.start, len(grid), grid.keys, grid.box,
-        grid.dense, grid.cellmap, grid.tkeys, grid.tvals, merged.plane_of_voxel, planes, band, noise_law_code(noise_model), float(noise_coeff), ray,
+        grid.points, grid.points.view(np.int32), int(point_step), bool(ordered), grid.start, len(grid), grid.keys, grid.box,
+        grid.dense, grid.cellmap, grid.tkeys, grid.tvals, grid.counts, grid.sums, grid.scatters,
+        merged.plane_of_voxel, planes, band, noise_law_code(noise_model), float(noise_coeff), ray,
         bool(refine_boundary), point_plane, True, bool(noise_weights), refs, acc_w, acc_s, acc_S, acc_n, acc_sum,
-        acc_amb,
+        acc_amb, sup, ws.get("rf_scratch", max(int(grid.counts.max()), 1), np.float64),
     )
     wmom = merged.wmoments.copy()
     wscat = merged.wscatters.copy()
@@ -258,7 +265,8 @@ def refine_merged_planes(
     old_to_kept = np.full(n, -1, np.int32)
     old_to_kept[keep] = np.arange(int(keep.sum()), dtype=np.int32)
     table = np.where(old_to_kept >= 0, kept_to_final[np.maximum(old_to_kept, 0)], -1).astype(np.int32)
-    pp = point_plane[:m]
-    valid = pp >= 0
-    pp[valid] = table[pp[valid]]
-    return replace(out, point_plane=pp)
+    kfin.remap_points(point_plane, m, table)
+    n_out = len(out)
+    support = (np.zeros(n_out, np.int64), np.zeros((n_out, 3)), np.zeros((n_out, 3, 3)))
+    kfin.support_moments(sup, refs, table, n_out, *support)
+    return replace(out, point_plane=point_plane[:m], support=support)

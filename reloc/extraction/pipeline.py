@@ -69,7 +69,8 @@ class PlaneExtractor:
         grid = voxelize_keyed(pts, point_key, cellcount, self._box, voxel_size_m=p.voxel_size_m,
                               workspace=self.workspace)
         timings["voxelize"] = (time.perf_counter() - t) * 1e3
-        return self._from_grid(grid, pts, pix, frame.intrinsics.shape, self.gravity_of(frame), timings, t0)
+        return self._from_grid(grid, pts, pix, frame.intrinsics.shape, self.gravity_of(frame), timings, t0,
+                               ordered=True)
 
     def extract_points(self, points_cam: np.ndarray, gravity=None, sensor_origin=(0.0, 0.0, 0.0)) -> ExtractionResult:
         """Planes of a point cloud in a frame parallel to the sensor's (z = viewing direction, the depth of the noise
@@ -97,7 +98,8 @@ class PlaneExtractor:
             result = ExtractionResult(result.planes.transformed(T, "cam"), result.timings_ms, result.stats)
         return result
 
-    def _from_grid(self, grid: VoxelGrid, pts, pix, image_shape, gravity, timings, t_start) -> ExtractionResult:
+    def _from_grid(self, grid: VoxelGrid, pts, pix, image_shape, gravity, timings, t_start,
+                   ordered: bool = False) -> ExtractionResult:
         p = self.params
         ws = self.workspace
         noise = dict(noise_model=p.noise_model, noise_coeff=p.noise_coeff)
@@ -139,7 +141,7 @@ class PlaneExtractor:
                 max_thickness_floor_m=p.max_thickness_floor_m, undergrown_max_angle_rad=p.undergrown_max_angle_rad,
                 undergrown_max_depth_angle_rad=p.undergrown_max_depth_angle_rad,
                 undergrown_max_offset_m=p.undergrown_max_offset_m, undergrown_radius_scale=p.undergrown_radius_scale,
-                noise_direction=p.noise_direction, point_step=4 if it < p.refine_iterations - 1 else 1,
+                noise_direction=p.noise_direction, point_step=4 if it < p.refine_iterations - 1 else 1, ordered=ordered,
                 workspace=ws, **noise,
             )
         timings["refine"] = (time.perf_counter() - t) * 1e3
