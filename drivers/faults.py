@@ -2,14 +2,16 @@
 
 :class:`FaultySource` wraps a :class:`~drivers.source.FrameSource` and, seeded, injects what real cameras do:
 
-- ``drop_rate``: a frame never arrives (the consumer sees a gap in ``seq``);
-- ``stall_rate`` / ``stall_s``: the stream stops for a while before the next frame (a USB hiccup);
-- ``invalid_rate``: a frame arrives with no valid depth at all (every pixel NaN: a covered lens, a saturated sensor);
+- ``drop_rate`` / ``drop_at``: a frame never arrives (the consumer sees a gap in ``seq``);
+- ``stall_rate`` / ``stall_at`` / ``stall_s``: the stream stops for a while before the next frame (a USB hiccup);
+- ``invalid_rate`` / ``invalid_at``: a frame arrives with no valid depth at all (every pixel NaN: a covered lens, a
+  saturated sensor);
 - ``disconnect_at``: at these input frame indices the stream breaks with :class:`SourceDisconnected` (an unplug);
   :meth:`FaultySource.reconnect` brings it back after ``reconnect_s``, the stream resuming where it stopped (stamps
   and ``seq`` keep increasing; the frame that was in flight is lost and counted as dropped by the disconnect).
 
-Every injected fault is counted in :attr:`FaultySource.counts` and the affected ``seq`` numbers are kept in
+Rates are per-frame probabilities; ``*_at`` are input frame indices (0-based, counted over the wrapped stream) where
+the fault happens for certain. Every injected fault is counted in :attr:`FaultySource.counts` and the affected ``seq`` numbers are kept in
 :attr:`FaultySource.injected`, so a test can check the consumer's counts against exactly what was injected.
 The decisions depend only on the seed and the frame's position in the input, never on timing.
 """
@@ -45,6 +47,8 @@ class FaultySource(FrameSource):
         The wrapped source; closed when this one is.
     drop_rate, stall_rate, invalid_rate:
         Independent per-frame probabilities (0..1) of dropping the frame, stalling before it, making it all-invalid.
+    drop_at, stall_at, invalid_at:
+        Input frame indices where that fault happens regardless of the rates.
     stall_s:
         Length of each stall, seconds.
     disconnect_at:
@@ -59,7 +63,7 @@ class FaultySource(FrameSource):
 
     def __init__(self, inner: FrameSource, *, drop_rate: float = 0.0, stall_rate: float = 0.0, stall_s: float = 0.2,
                  invalid_rate: float = 0.0, disconnect_at=(), reconnect_s: float = 0.0, reconnect_failures: int = 0,
-                 seed: int = 0) -> None:
+                 drop_at=(), stall_at=(), invalid_at=(), seed: int = 0) -> None:
         super().__init__()
         if not isinstance(inner, FrameSource):
             raise ValueError(f"inner: expected a FrameSource, got {type(inner).__name__}")
@@ -68,15 +72,20 @@ class FaultySource(FrameSource):
                 raise ValueError(f"{name}: expected a probability in [0, 1], got {rate!r}")
         if not stall_s >= 0 or not reconnect_s >= 0:
             raise ValueError(f"stall_s, reconnect_s: expected >= 0, got {stall_s}, {reconnect_s}")
-        at = sorted({int(i) for i in disconnect_at})
-        if at and at[0] < 0:
-            raise ValueError(f"disconnect_at: expected non-negative frame indices, got {list(disconnect_at)}")
+        at_sets = {}
+        for name, idx in (("disconnect_at", disconnect_at), ("drop_at", drop_at), ("stall_at", stall_at),
+                          ("invalid_at", invalid_at)):
+            at_sets[name] = sorted({int(i) for i in idx})
+            if at_sets[name] and at_sets[name][0] < 0:
+                raise ValueError(f"{name}: expected non-negative frame indices, got {list(idx)}")
+        at = at_sets["disconnect_at"]
         if not isinstance(reconnect_failures, int) or reconnect_failures < 0:
             raise ValueError(f"reconnect_failures: expected a non-negative integer, got {reconnect_failures!r}")
         self.inner = inner
         self.drop_rate, self.stall_rate, self.invalid_rate = float(drop_rate), float(stall_rate), float(invalid_rate)
         self.stall_s, self.reconnect_s = float(stall_s), float(reconnect_s)
         self.disconnect_at = at
+        self.drop_at, self.stall_at, self.invalid_at = (set(at_sets[k]) for k in ("drop_at", "stall_at", "invalid_at"))
         self.reconnect_failures = reconnect_failures
         self.seed = int(seed)
         self.name = f"faulty({inner.name})"
@@ -136,16 +145,16 @@ class FaultySource(FrameSource):
                 self.counts["lost_in_disconnect"] += 1
                 self.injected["disconnects"].append(int(frame.seq))
                 raise SourceDisconnected(f"{self.name}: device lost at input frame {k} (seq {frame.seq})")
-            if u_drop < self.drop_rate:
+            if u_drop < self.drop_rate or k in self.drop_at:
                 self.counts["dropped"] += 1
                 self.injected["dropped"].append(int(frame.seq))
                 continue
-            if u_stall < self.stall_rate:
+            if u_stall < self.stall_rate or k in self.stall_at:
                 self.counts["stalls"] += 1
                 self.injected["stalls"].append(int(frame.seq))
                 if self._wake.wait(self.stall_s):
                     return
-            if u_invalid < self.invalid_rate:
+            if u_invalid < self.invalid_rate or k in self.invalid_at:
                 self.counts["invalid"] += 1
                 self.injected["invalid"].append(int(frame.seq))
                 frame = replace(frame, depth_m=np.full(frame.depth_m.shape, np.nan, dtype=np.float32))

@@ -49,6 +49,14 @@ def test_faulty_source_is_seeded_and_counts_what_it_injects():
     assert a.counts["stalls"] == len(a.injected["stalls"]) > 0
 
 
+def test_faults_at_stated_frames():
+    src = FaultySource(sim_source(12), drop_at=[2, 7], invalid_at=[4], stall_at=[5], stall_s=0.0)
+    frames = list(src)
+    assert [f.seq for f in frames] == [0, 1, 3, 4, 5, 6, 8, 9, 10, 11]
+    assert [f.seq for f in frames if not np.any(f.depth_m > 0)] == [4]
+    assert src.injected == {"dropped": [2, 7], "stalls": [5], "invalid": [4], "disconnects": []}
+
+
 def test_disconnect_then_reconnect_resumes_the_stream():
     src = FaultySource(sim_source(20), disconnect_at=[5, 12], reconnect_failures=1)
     seqs = []
@@ -76,6 +84,8 @@ def test_bad_parameters_are_named():
         FaultySource([1, 2, 3])
     with pytest.raises(ValueError, match="disconnect_at"):
         FaultySource(sim_source(2), disconnect_at=[-1])
+    with pytest.raises(ValueError, match="stall_at"):
+        FaultySource(sim_source(2), stall_at=[-3])
 
 
 # -- the loop under faults ---------------------------------------------------------------------------------------
