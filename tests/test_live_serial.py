@@ -125,33 +125,40 @@ def test_loop_relocalizes_end_to_end_with_the_simulated_firmware(tmp_path, livin
 
 
 def test_reloc_run_command_with_the_simulated_firmware_on_a_pty(tmp_path):
+    """`reloc run --camera sim --serial PTY --follow-firmware` against the simulated firmware driving the robot
+    trajectory (as `reloc firmware-sim --trajectory robot --scene living_room` does): the camera renders from the
+    firmware's robot on the firmware's clock, so the firmware's own pose checks hold end to end."""
     from reloc.cli import cli
+    from sim.trajectories import make_trajectory
 
     link = tmp_path / "ttyMCU"
     out = tmp_path / "summary.json"
     cfg = tmp_path / "live.yaml"
-    cfg.write_text("live:\n  realtime: true\n  status_period_s: 0.2\n  reloc_period_s: 0.5\n")
-    # The firmware drives the base along the same simulated trajectory the camera renders (time bases differ by the
-    # start-up of the command, so its pose checks are not meaningful here; the in-process test checks them).
-    from sim.trajectories import make_trajectory
-
-    poses = make_trajectory("robot", make_scene("living_room"), 300, 0, rate_hz=30.0)
+    # Submaps of 8 frames put together with the firmware's odometry: single views of this start are too narrow.
+    cfg.write_text("live:\n  status_period_s: 0.2\n  reloc_period_s: 0.5\nmapping:\n  submap_window_frames: 8\n")
+    poses = make_trajectory("robot", make_scene("living_room", seed=0), 300, 0, rate_hz=30.0)
     mcu = McuSimulator(PtyEndpoint(link), path=SampledPath.from_T_world_cam(poses, 30.0, T_BASE_CAM),
-                       reloc_period_s=0.5, seed=2)
+                       reloc_period_s=0.5, seed=2, pose_tolerance_m=0.1, pose_tolerance_deg=2.0)
     with mcu:
         result = CliRunner().invoke(cli, [
-            "run", "--camera", "sim", "--map", "sim:living_room", "--planes", "truth", "--serial", str(link),
-            "--frames", "45", "--summary", str(out), "--config", str(cfg), "--quiet"])
+            "run", "--camera", "sim:living_room", "--map", "sim:living_room", "--serial", str(link),
+            "--follow-firmware", "--firmware-frames", "300", "--frames", "60", "--summary", str(out),
+            "--config", str(cfg), "--quiet"])
         mcu_stats = mcu.stats()
+        checks = list(mcu.pose_checks)
     assert result.exit_code == 0, result.output
     s = json.loads(out.read_text())
-    assert s["frames"]["captured"] == 45 and s["source_events"]["end"] == "max_frames"
+    assert s["frames"]["captured"] == 60 and s["source_events"]["end"] == "max_frames"
     assert s["relocalizations_ok"] >= 1
     for r in s["relocalizations"]:
         if r["status"] == "relocalized":
             assert r["position_error_m"] < 0.1 and r["rotation_error_deg"] < 2.0
     assert s["bridge"]["odometry"] > 0 and s["bridge"]["poses_sent"] >= 1 and s["bridge"]["frames_bad"] == 0
-    assert mcu_stats["poses_received"] >= 1 and mcu_stats["decoder"]["frames_bad"] == 0
+    assert s["odometry"]["used"].get("bridge", 0) > 0
+    # The firmware checked every relocalized pose it got against its own ground truth.
+    ok_checks = [c for c in checks if c.status == PoseStatus.OK]
+    assert ok_checks and all(c.ok for c in ok_checks), (ok_checks, mcu_stats)
+    assert mcu_stats["decoder"]["frames_bad"] == 0
     assert "relocalizations:" in result.output
 
 

@@ -28,9 +28,14 @@ import click
               help="extract = plane extraction; truth = the simulator's ground-truth planes (sim camera only).")
 @click.option("--trace", "trace_path", type=click.Path(dir_okay=False), default=None,
               help="Write a Chrome trace (one track per thread) of the run here.")
+@click.option("--follow-firmware", is_flag=True,
+              help="With --camera sim:SCENE and --serial: render from the simulated firmware's robot (reloc "
+                   "firmware-sim --trajectory robot --scene SCENE), on its clock, so its pose checks hold.")
+@click.option("--firmware-frames", type=int, default=3000, show_default=True,
+              help="With --follow-firmware: the firmware simulator's --frames (its trajectory length).")
 @click.option("--quiet", is_flag=True, help="No status line.")
 def run(camera, map_spec, serial_url, frames, duration_s, summary_path, config_path, rate, odometry, planes,
-        trace_path, quiet):
+        trace_path, follow_firmware, firmware_frames, quiet):
     """Relocalize live: frames -> planes -> submaps -> poses, with odometry in and poses out over serial.
 
     Ctrl-C or SIGTERM stop cleanly (threads joined, the summary and trace written). On a terminal, Enter asks
@@ -60,17 +65,30 @@ def run(camera, map_spec, serial_url, frames, duration_s, summary_path, config_p
     url = serial_url if serial_url is not None else cfg.serial.url
     echo = (lambda line: None) if quiet else (lambda line: click.echo(line, err=True))
 
+    if follow_firmware and (not url or camera.partition(":")[0] != "sim"):
+        raise click.UsageError("--follow-firmware needs --camera sim[:SCENE] and a serial link (--serial)")
     map_planes, plane_map = load_plane_map(map_spec)
     echo(f"map: {len(map_planes)} planes from {map_spec}")
     relocalizer = make_relocalizer(plane_map, cfg)
-    source = open_camera(camera, cfg, rate=rate, n_frames=frames)
-    bridge = None
+    bridge = source = None
     try:
-        extract = make_extractor(cfg, planes=planes, scene=getattr(source, "scene", None))
-        _warm_up(extract, source)
         if url:
             bridge = make_bridge(url, cfg)
             echo(f"serial: {url}")
+        if follow_firmware:
+            import numpy as np
+
+            from reloc.live.sim_robot import FirmwareSyncedSimSource
+
+            clock = bridge.clock
+            source = FirmwareSyncedSimSource.like_firmware_sim(
+                camera.partition(":")[2] or "living_room", firmware_frames,
+                np.asarray(cfg.camera.T_base_cam).reshape(4, 4),
+                lambda host_ns: clock.host_to_mcu_ns(host_ns) if clock.synced else None)
+        else:
+            source = open_camera(camera, cfg, rate=rate, n_frames=frames)
+        extract = make_extractor(cfg, planes=planes, scene=getattr(source, "scene", None))
+        _warm_up(extract, source)
         profiler = Profiler(trace_capacity=200_000 if trace_path else 0)
         loop = LiveLoop(source, extract, relocalizer, params=LiveParams.from_config(cfg), map_planes=map_planes,
                         bridge=bridge, odometry=odometry, profiler=profiler, on_status=echo,
@@ -91,7 +109,8 @@ def run(camera, map_spec, serial_url, frames, duration_s, summary_path, config_p
     finally:
         if bridge is not None:
             bridge.close()
-        source.close()
+        if source is not None:
+            source.close()
 
     d = summary.to_dict()
     d["command"] = {"camera": camera, "map": map_spec, "serial": url or None, "frames": frames, "duration_s": duration_s,
