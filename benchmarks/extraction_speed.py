@@ -10,9 +10,14 @@ configuration is warmed up (JIT and buffers) before it is timed; times come from
 
 Configurations run side by side on the same frames: the defaults; without the point refinement (planes straight
 from the merged voxel moments); a paper-like setting (no robust weights, no noise weights, no refinement: PCA
-voxels, Eq. 2 weights, merging); and without merging (VR-NM).
+voxels, Eq. 2 weights, merging); without merging (VR-NM); and, for scale, every second pixel in both directions
+(not full resolution, so not the figure the goal is about).
 
-Prints a table and writes benchmarks/results/extraction_speed.json (or ``--name``).
+``parallel=True`` on this machine's cores: ``--parallel-probe`` (run by the main run in a subprocess with two
+numba threads) times the per-voxel moments and a per-point plane-distance pass, the two loop shapes of the
+pipeline, compiled serially and with ``prange``, on the same frames.
+
+Prints tables and writes benchmarks/results/extraction_speed.json (or ``--name``).
 """
 
 from __future__ import annotations
@@ -27,6 +32,7 @@ VARIANTS = {
     "no-refine": {"refine_iterations": 0},
     "paper-like": {"refine_iterations": 0, "irls_iterations": 0, "noise_weights": False},
     "no-merge (VR-NM)": {"merge": False},
+    "pixel stride 2": {"pixel_stride": 2},
 }
 DATASETS = (("kinect", "kinect"), ("oak-d", "stereo"))
 SCENES = ("living_room", "office", "apartment", "corridor")
@@ -39,7 +45,12 @@ def main() -> None:
     ap.add_argument("--variants", default=",".join(VARIANTS), help="Comma-separated subset of: " + ", ".join(VARIANTS))
     ap.add_argument("--quick", action="store_true", help="40 frames per camera (a smoke run, not for reporting).")
     ap.add_argument("--name", default="extraction_speed", help="Result file stem in benchmarks/results/.")
+    ap.add_argument("--parallel-probe", action="store_true", help=argparse.SUPPRESS)
     args = ap.parse_args()
+    if args.parallel_probe:
+        os.environ["NUMBA_NUM_THREADS"] = "2"
+        parallel_probe()
+        return
     os.environ["NUMBA_NUM_THREADS"] = str(args.threads)  # before numba is imported (by reloc below)
 
     import numpy as np
@@ -105,10 +116,104 @@ def main() -> None:
                 title=f"Extraction latency (ms per frame, {n_frames} frames per camera, {args.threads} thread(s); "
                       "stage columns are medians)",
                 floatfmt=["s"] + [".2f"] * (3 + len(STAGES)) + [".0f"])
+    probe = _run_parallel_probe()
+    if probe is not None:
+        print_table(["loop (640x480 frames)", "serial ms", "prange 2 threads ms", "speed-up"],
+                    [[r["kernel"], r["serial_ms"], r["parallel_ms"], r["serial_ms"] / r["parallel_ms"]]
+                     for r in probe], title="parallel=True on two cores (median per frame)",
+                    floatfmt=["s", ".3f", ".3f", ".2f"])
     path = write_results(args.name, params={"frames_per_camera": n_frames, "threads": args.threads,
                                             "scenes": SCENES, "datasets": DATASETS, "variants": variants},
-                         results=results)
+                         results={"latency": results, "parallel_probe": probe})
     print(f"wrote {path}")
+
+
+def _run_parallel_probe():
+    """Run :func:`parallel_probe` in a subprocess (two numba threads); its JSON result, or None if it failed."""
+    import json
+    import subprocess
+
+    out = subprocess.run([sys.executable, os.path.abspath(__file__), "--parallel-probe"], capture_output=True,
+                         text=True, timeout=900)
+    if out.returncode != 0:
+        print(f"parallel probe failed:\n{out.stderr[-2000:]}", file=sys.stderr)
+        return None
+    return json.loads(out.stdout.strip().splitlines()[-1])
+
+
+def parallel_probe() -> None:
+    """Serial vs prange versions of the pipeline's two loop shapes on real frames; prints one JSON line.
+
+    The probe compiles its own kernels (the one place outside the kernel modules that imports numba): each loop is
+    written once with ``prange``, which is a plain ``range`` when compiled without ``parallel=True``.
+    """
+    import json
+
+    import numba
+    import numpy as np
+
+    import sim
+    from reloc.extraction.backproject import depth_to_points
+    from reloc.extraction.voxelize import voxelize
+
+    def moments(sorted_pts, voxel_start, nv, out):
+        for v in numba.prange(nv):
+            a = voxel_start[v]
+            b = voxel_start[v + 1]
+            rx = np.float64(sorted_pts[a, 0])
+            ry = np.float64(sorted_pts[a, 1])
+            rz = np.float64(sorted_pts[a, 2])
+            s0 = s1 = s2 = s3 = s4 = s5 = s6 = s7 = s8 = 0.0
+            for j in range(a, b):
+                x = sorted_pts[j, 0] - rx
+                y = sorted_pts[j, 1] - ry
+                z = sorted_pts[j, 2] - rz
+                s0 += x
+                s1 += y
+                s2 += z
+                s3 += x * x
+                s4 += x * y
+                s5 += x * z
+                s6 += y * y
+                s7 += y * z
+                s8 += z * z
+            out[v, 0] = s0 + s1 + s2
+            out[v, 1] = s3 + s4 + s5 + s6 + s7 + s8
+
+    def distances(sorted_pts, voxel_start, nv, plane, band, labels):
+        for v in numba.prange(nv):
+            for j in range(voxel_start[v], voxel_start[v + 1]):
+                r = (plane[0] * sorted_pts[j, 0] + plane[1] * sorted_pts[j, 1] + plane[2] * sorted_pts[j, 2]
+                     + plane[3])
+                labels[j] = 0 if abs(r) < band * sorted_pts[j, 2] ** 2 else -1
+
+    opts = {"fastmath": {"reassoc", "contract"}, "error_model": "numpy"}
+    kernels = {name: (numba.njit(**opts)(fn), numba.njit(parallel=True, **opts)(fn))
+               for name, fn in (("voxel moments", moments), ("point-plane distances", distances))}
+    frames = sim.simulate_frames(scene="office", trajectory="robot", n_frames=30, noise="kinect", camera="kinect",
+                                 seed=1)
+    grids = []
+    for f in frames:
+        pts, _ = depth_to_points(f.depth_m, f.intrinsics)
+        g = voxelize(pts.copy())
+        grids.append((g.points.copy(), g.start.copy(), len(g)))
+    results = []
+    for name, (ser, par) in kernels.items():
+        times = {"serial": [], "parallel": []}
+        for mode, fn in (("serial", ser), ("parallel", par)):
+            for rep in range(3):
+                for pts, start, nv in grids:
+                    if name == "voxel moments":
+                        args = (pts, start, nv, np.zeros((nv, 2)))
+                    else:
+                        args = (pts, start, nv, np.array([0.0, 0.0, -1.0, 2.0]), 5e-3, np.empty(len(pts), np.int32))
+                    t0 = time.perf_counter()
+                    fn(*args)
+                    if rep:  # the first round compiles and warms up
+                        times[mode].append((time.perf_counter() - t0) * 1e3)
+        results.append({"kernel": name, "serial_ms": float(np.median(times["serial"])),
+                        "parallel_ms": float(np.median(times["parallel"])), "threads": numba.get_num_threads()})
+    print(json.dumps(results))
 
 
 if __name__ == "__main__":

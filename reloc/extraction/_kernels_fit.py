@@ -229,6 +229,15 @@ def robust_fit_points(pts, power, coeff, ray_mode, use_noise, use_position, alph
     W = 0.0
     for it in range(max(max_iter, 1)):
         iters = it + 1
+        # Noise along the normal: sigmas at the depth of each point's foot on the current plane. A sigma taken at
+        # the measured depth grows with the noise draw itself and weights points whose noise pushed them nearer
+        # more, biasing the plane toward the sensor. (Along the ray the foot is unstable at grazing incidence,
+        # and measured depths did as well there on ray-noise data, so ray mode keeps them.)
+        if not ray_mode and (use_noise or use_robust):
+            for i in range(n):
+                pz = pts[i, 2]
+                z_hat = pz - (nx * pts[i, 0] + ny * pts[i, 1] + nz * pz + d) * nz
+                sig_z[i] = point_sigma(z_hat if z_hat > 0.0 else pz, power, coeff)
         # Robust scale of the sigma-normalised residuals (MAD).
         if use_robust:
             for i in range(n):
