@@ -3,7 +3,7 @@
 Run from the repository root::
 
     python benchmarks/extraction_accuracy.py            # all three protocols
-    python benchmarks/extraction_accuracy.py --quick    # smoke run (fewer points, trials, frames)
+    python benchmarks/extraction_accuracy.py --quick    # smoke run (fewer points, trials, frames), *_quick.json
     python benchmarks/extraction_accuracy.py --protocols 1
 
 Prints one table per protocol and writes ``benchmarks/results/extraction_accuracy.json`` (with date, machine, git
@@ -889,9 +889,12 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--laws", default="kinect,tof,kinect-ray,tof-ray", help="protocol 1 noise laws: " + ",".join(NOISE_LAWS))
     ap.add_argument("--frames", type=int, default=None, help="protocol 2: frames per scene and noise (default 10)")
     ap.add_argument("--real-data", type=Path, default=REAL_ROOT, help="protocol 3: folder of the real clips")
-    ap.add_argument("--name", default="extraction_accuracy", help="results file stem in benchmarks/results")
+    ap.add_argument("--name", default=None,
+                    help="results file stem in benchmarks/results (default extraction_accuracy, or "
+                         "extraction_accuracy_quick with --quick so a smoke run never replaces the full results)")
     args = ap.parse_args(argv)
 
+    name = args.name or ("extraction_accuracy_quick" if args.quick else "extraction_accuracy")
     protocols = {int(p) for p in args.protocols.split(",") if p.strip()}
     if not protocols <= {1, 2, 3}:
         ap.error(f"--protocols: expected a subset of 1,2,3, got {args.protocols!r}")
@@ -921,7 +924,7 @@ def main(argv: list[str] | None = None) -> int:
               "max_angle_deg": 5.0, "offset_gate_sigmas": 4.0, "offset_gate_min_m": 0.01}
         params["protocol3"] = p3
         results["protocol3"] = run_protocol3(**p3)
-    path = write_results(args.name, params=params, results=results)
+    path = write_results(name, params=params, results=results)
     print(f"wrote {path}")
     return 0
 
