@@ -141,7 +141,7 @@ def _subsample_voxel(sorted_pts, point_bits, step, by_order, a, b, q, planes, ba
 def _single_plane_voxel(sorted_pts, a, b, q, planes, band, power, coeff, ray_mode, point_plane,
                         accumulate, use_noise, refs, acc_w, acc_s, acc_S, acc_n, acc_sum, sup, scratch):
     """:func:`assign_points` for a voxel whose only candidate is plane ``q`` (most voxels): no corner test, and two
-    branch-free loops (distances, then weighted sums) that vectorise. ``scratch`` (>= b - a,) float64. Returns the
+    branch-free loops (distances, then weighted sums) that vectorise. ``scratch`` (3, >= b - a) float64. Returns the
     number of points assigned."""
     nx = planes[q, 0]
     ny = planes[q, 1]
@@ -160,9 +160,9 @@ def _single_plane_voxel(sorted_pts, a, b, q, planes, band, power, coeff, ray_mod
         lo = MIN_INCIDENCE * zz
         den = (an if an > lo else lo) if ray_mode else zz
         u = abs(npd + d) * g / den
-        scratch[j - a] = u
+        scratch[0, j - a] = u
     for j in range(a, b):
-        inside = scratch[j - a] <= bq
+        inside = scratch[0, j - a] <= bq
         n_in += 1 if inside else 0
         point_plane[j] = q if inside else -1
     if not accumulate:
@@ -178,7 +178,7 @@ def _single_plane_voxel(sorted_pts, a, b, q, planes, band, power, coeff, ray_mod
         px = np.float64(sorted_pts[j, 0])
         py = np.float64(sorted_pts[j, 1])
         pz = np.float64(sorted_pts[j, 2])
-        u = scratch[j - a]
+        u = scratch[0, j - a]
         t = 1.0 - u * u * inv_b2
         t = t if t > 0.0 else 0.0
         w = t * t
@@ -244,6 +244,139 @@ def _single_plane_voxel(sorted_pts, a, b, q, planes, band, power, coeff, ray_mod
 
 
 @njit(error_model="numpy")
+def _multi_plane_voxel(sorted_pts, a, b, cand, nc, planes, band, power, coeff, ray_mode, point_plane, accumulate,
+                       use_noise, refs, acc_w, acc_s, acc_S, acc_n, acc_sum, acc_amb, sup, scratch, e):
+    """:func:`assign_points` for a voxel with several candidate planes, in two phases: each point's nearest
+    candidate and whether it is near a corner (scalar), then, per candidate, the masked sums of its points
+    (vectorised, as in :func:`_single_plane_voxel`). ``scratch`` (3, >= b - a), ``e`` (MAX_CANDIDATES,)."""
+    n_in = 0
+    for j in range(a, b):
+        px = np.float64(sorted_pts[j, 0])
+        py = np.float64(sorted_pts[j, 1])
+        pz = np.float64(sorted_pts[j, 2])
+        zz = pz if pz > MIN_DEPTH else MIN_DEPTH
+        g = zz / _sigma_z(zz, power, coeff)
+        best = -1
+        best_u = np.inf
+        for k in range(nc):
+            q = cand[k]
+            npd = planes[q, 0] * px + planes[q, 1] * py + planes[q, 2] * pz
+            r = npd + planes[q, 3]
+            lo = MIN_INCIDENCE * zz
+            den = npd if abs(npd) >= lo else (lo if npd >= 0.0 else -lo)
+            e[k] = r * g / den
+            u = abs(e[k]) if ray_mode else abs(r) * g / zz
+            if u <= band[cand[k]] and u < best_u:
+                best_u = u
+                best = k
+        amb = False
+        if best >= 0:
+            q = cand[best]
+            point_plane[j] = q
+            n_in += 1
+            for k in range(nc):
+                o = cand[k]
+                if k == best:
+                    continue
+                # Nearly parallel candidates are pieces of one surface (fragments that merge later), not a corner.
+                if (planes[o, 0] * planes[q, 0] + planes[o, 1] * planes[q, 1] + planes[o, 2] * planes[q, 2]
+                        > COS_CORNER):
+                    continue
+                if abs(e[k] - e[best]) < CORNER_BANDS * band[q]:
+                    amb = True
+                    break
+            if amb:
+                acc_amb[q] += 1
+        else:
+            point_plane[j] = -1
+        scratch[0, j - a] = best_u
+        scratch[1, j - a] = best
+        scratch[2, j - a] = 1.0 if amb else 0.0
+    if not accumulate:
+        return n_in
+    for k in range(nc):
+        q = cand[k]
+        bq = band[q]
+        inv_b2 = 1.0 / (bq * bq)
+        rx = refs[q, 0]
+        ry = refs[q, 1]
+        rz = refs[q, 2]
+        W, s0, s1, s2, s3, s4, s5, s6, s7, s8, c0, c1, c2, cn, h = _masked_sums(
+            sorted_pts, a, b, k, scratch, inv_b2, rx, ry, rz, power, coeff, ray_mode, use_noise)
+        acc_w[q] += W
+        acc_s[q, 0] += s0
+        acc_s[q, 1] += s1
+        acc_s[q, 2] += s2
+        acc_S[q, 0, 0] += s3
+        acc_S[q, 0, 1] += s4
+        acc_S[q, 0, 2] += s5
+        acc_S[q, 1, 1] += s6
+        acc_S[q, 1, 2] += s7
+        acc_S[q, 2, 2] += s8
+        acc_n[q] += int(cn)
+        acc_sum[q, 0] += c0
+        acc_sum[q, 1] += c1
+        acc_sum[q, 2] += c2
+        for i in range(10):
+            sup[q, i] += h[i]
+    return n_in
+
+
+@njit(fastmath={"reassoc", "contract"}, error_model="numpy")
+def _masked_sums(sorted_pts, a, b, k, scratch, inv_b2, rx, ry, rz, power, coeff, ray_mode, use_noise):
+    """Refit and support sums of the points of a voxel whose nearest candidate is ``k`` (see
+    :func:`_multi_plane_voxel`); corner points count for the support, not for the refit."""
+    W = s0 = s1 = s2 = s3 = s4 = s5 = s6 = s7 = s8 = 0.0
+    c0 = c1 = c2 = cn = 0.0
+    h0 = h1 = h2 = h3 = h4 = h5 = h6 = h7 = h8 = h9 = 0.0
+    kf = np.float64(k)
+    for j in range(a, b):
+        mine = 1.0 if scratch[1, j - a] == kf else 0.0
+        fit = mine * (1.0 - scratch[2, j - a])
+        px = np.float64(sorted_pts[j, 0])
+        py = np.float64(sorted_pts[j, 1])
+        pz = np.float64(sorted_pts[j, 2])
+        u = scratch[0, j - a]
+        u = u if mine > 0.0 else 0.0  # u is inf where the point has no plane
+        t = 1.0 - u * u * inv_b2
+        t = t if t > 0.0 else 0.0
+        w = t * t * fit
+        if use_noise:
+            zz = pz if pz > MIN_DEPTH else MIN_DEPTH
+            g = zz / _sigma_z(zz, power, coeff)
+            w *= g * g if ray_mode else g * g / (zz * zz)
+        x = px - rx
+        y = py - ry
+        z = pz - rz
+        W += w
+        s0 += w * x
+        s1 += w * y
+        s2 += w * z
+        s3 += w * x * x
+        s4 += w * x * y
+        s5 += w * x * z
+        s6 += w * y * y
+        s7 += w * y * z
+        s8 += w * z * z
+        f = fit if t > 0.0 else 0.0
+        cn += f
+        c0 += f * px
+        c1 += f * py
+        c2 += f * pz
+        h0 += mine
+        h1 += mine * x
+        h2 += mine * y
+        h3 += mine * z
+        h4 += mine * x * x
+        h5 += mine * x * y
+        h6 += mine * x * z
+        h7 += mine * y * y
+        h8 += mine * y * z
+        h9 += mine * z * z
+    return W, s0, s1, s2, s3, s4, s5, s6, s7, s8, c0, c1, c2, cn, (h0, h1, h2, h3, h4, h5, h6, h7, h8, h9)
+
+
+@njit(error_model="numpy")
 def _reachable(v, nc, cand, own, counts, sums, scatters, planes, band, power, coeff):
     """Keep in ``cand[:nc]`` the voxel's own plane and the planes that can reach its points (see
     :func:`assign_points`); returns how many are left."""
@@ -304,7 +437,7 @@ def assign_points(sorted_pts, point_bits, step, by_order, voxel_start, nv, voxel
     ``step > 1`` (a power of two, with ``accumulate``) is a cheap refit pass: only about 1 in ``step`` points, every
     ``step``-th of each voxel with ``by_order`` (a depth image's fixed raster order), else chosen by a hash of their
     coordinates (``point_bits`` = ``sorted_pts`` viewed as int32) so that the order of a point cloud does not matter;
-    ``point_plane`` is not written. ``scratch`` (>= the largest voxel) float64.
+    ``point_plane`` is not written. ``scratch`` (3, >= the largest voxel) float64.
     """
     cand = np.empty(MAX_CANDIDATES, np.int64)
     e = np.empty(MAX_CANDIDATES)
@@ -340,6 +473,11 @@ def assign_points(sorted_pts, point_bits, step, by_order, voxel_start, nv, voxel
             n_assigned += _single_plane_voxel(sorted_pts, a, b, cand[0], planes, band, power, coeff, ray_mode,
                                               point_plane, accumulate, use_noise, refs, acc_w, acc_s, acc_S, acc_n,
                                               acc_sum, sup, scratch)
+            continue
+        if step == 1:
+            n_assigned += _multi_plane_voxel(sorted_pts, a, b, cand, nc, planes, band, power, coeff, ray_mode,
+                                             point_plane, accumulate, use_noise, refs, acc_w, acc_s, acc_S, acc_n,
+                                             acc_sum, acc_amb, sup, scratch, e)
             continue
         for j in range(a, b):
             if step > 1:
@@ -701,7 +839,7 @@ def _warmup() -> None:
             assign_points(pts, pts.view(np.int32), step, by_order, start, 2, vkey, box, dense, cellmap, tk, tv,
                           np.array([15, 15], np.int64), pts[:2].astype(np.float64) * 15, np.tile(np.eye(3), (2, 1, 1)) * 60,
                           np.array([0, -1], np.int32), planes, np.array([4.0]), 2, 1.425e-3, True, True, pp, True, True,
-                          refs, aw, a_s, aS, an, asum, amb, np.zeros((1, 10)), np.empty(m))
+                          refs, aw, a_s, aS, an, asum, amb, np.zeros((1, 10)), np.empty((3, m)))
     for ray in (True, False):
         solve_planes(aw, a_s, aS, refs, ray, planes.copy(), np.zeros((1, 4)), np.zeros((1, 3, 3)))
     counts = np.zeros(1, np.int64)

@@ -74,7 +74,7 @@ def assemble_plane_set(
             grid.cellmap, grid.tkeys, grid.tvals, grid.counts, grid.sums, grid.scatters, merged.plane_of_voxel,
             planes, band, power, float(noise_coeff), ray, bool(refine_boundary), point_plane, False, False, z3,
             np.zeros(1), z3, np.zeros((1, 3, 3)), np.zeros(1, np.int64), z3, np.zeros(1, np.int64),
-            np.zeros((1, 10)), ws.get("rf_scratch", max(int(grid.counts.max()), 1), np.float64),
+            np.zeros((1, 10)), ws.get("rf_scratch", (3, max(int(grid.counts.max()), 1)), np.float64),
         )
         kf.plane_stats(grid.points, point_plane, m, counts, sums, scatters)
     radii = np.zeros(n_all)
