@@ -57,6 +57,11 @@ def _matches(ps, labels, planes):
     return out
 
 
+def plane_angles(a, b):
+    """Angle (deg) between each plane of ``a`` and the closest-normal plane of ``b``."""
+    return np.degrees(np.arccos(np.clip((a.normals @ b.normals.T).max(axis=1), -1, 1)))
+
+
 def test_box_room_planes_are_recovered_with_their_set_filled():
     depth, labels, planes = _box_room(R=_rot([0.3, 1.0, 0.2], 0.5))
     frame = DepthFrame(depth, K, stamp_ns=0, gravity_cam=np.array([0.0, 0.9, 0.1]))
@@ -193,6 +198,10 @@ def test_ablation_switches_and_gravity_fallback():
     base = extract_planes(frame, ExtractionParams())
     vr_ne = extract_planes(frame, ExtractionParams(adaptive_weights=False))
     assert len(vr_ne.planes) == len(base.planes)
+    # Planes straight from the merged voxel moments (no refinement): the plane set assigns the points itself.
+    unrefined = extract_planes(frame, ExtractionParams(refine_iterations=0)).planes
+    assert len(unrefined) == len(base.planes)
+    assert np.all(plane_angles(unrefined, base.planes) < 1.0)
     assert np.allclose(base.planes.gravity, [0.0, 1.0, 0.0])  # no gravity in the frame: the camera's +y
     assert extract_planes(frame, ExtractionParams(gravity_fallback="none")).planes.gravity is None
     # One extractor reused across frames gives the same planes as fresh calls (no state leaks between frames).

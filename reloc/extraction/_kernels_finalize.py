@@ -274,7 +274,7 @@ def _multi_plane_voxel(sorted_pts, a, b, cand, nc, planes, band, power, coeff, r
             q = cand[best]
             point_plane[j] = q
             n_in += 1
-            for k in range(nc):
+            for k in range(nc if accumulate else 0):
                 o = cand[k]
                 if k == best:
                     continue
