@@ -2,9 +2,10 @@
 
 Data flow (one module per stage, numba kernels in the ``_kernels_*`` modules):
 ``backproject`` (depth to points) -> ``voxelize`` (counting sort into voxels, per-voxel moments) ->
-``voxel_planes`` (PCA plane and planarity per voxel, then the weighted refit of Eq. 2-3) -> ``merge`` (voxel growth
-and under-grown fragments) -> ``assemble`` (supporting points, radius, area, samples, labels) ; ``pipeline``
-composes and times them. ``fit`` is the same robust weighted fit for one arbitrary point set.
+``voxel_planes`` (PCA plane and planarity per voxel, then the robust weighted refit with the paper's Eq. 2 weights)
+-> ``merge`` (voxel growth and under-grown fragments from summed moments, then the refinement pass over the points
+near each plane) -> ``assemble`` (statistics, radius, area, samples, labels); ``pipeline`` composes and times them,
+``cli`` is ``reloc planes``. ``fit`` is the robust weighted fit for one arbitrary point set.
 """
 
 from reloc.extraction.fit import fit_plane

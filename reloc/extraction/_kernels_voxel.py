@@ -1,10 +1,12 @@
 """Numba kernels: depth image to points, and points grouped by voxel with a counting sort.
 
 Voxel ``(ix, iy, iz) = floor(p / size)`` (the grid is anchored at the origin, so it does not depend on the data).
-Inside the bounding box of the occupied cells a cell has the linear key ``((ix - x0) * ny + (iy - y0)) * nz +
-(iz - z0)``. When the box is small enough the key indexes a dense ``cellmap`` directly; otherwise an
-open-addressing hash table (linear probing, power-of-two size) maps keys to slots. Either way voxel ids are given
-in increasing key order, so the result does not depend on the order of the points, and the points are copied
+Inside a key box ``[x0, y0, z0, nx, ny, nz]`` a cell has the linear key ``((ix - x0) * ny + (iy - y0)) * nz +
+(iz - z0)``. For a depth frame the box is the viewing frustum (known before any pixel is read), so
+:func:`backproject_keys` keys and counts the points while back-projecting them; for a point cloud it is the bounding
+box of the points (:func:`voxel_box`, :func:`count_keys`). A small box indexes a dense cell table
+(:func:`scatter_dense`); a huge one goes through an open-addressing hash table (:func:`voxelize_hash`). Either way
+voxel ids follow the key order, so the result does not depend on the order of the points, and the points are copied
 voxel by voxel into contiguous arrays (a stable counting sort: no comparison sort over the points).
 """
 
