@@ -405,3 +405,37 @@ def test_reloc_run_replays_a_recording_against_a_map_file(tmp_path):
     assert {"capture", "processing", "relocalization"} <= set(tracks.values())
     stages = {(tracks[e["tid"]], e["name"].split(".")[0]) for e in events if e["ph"] == "X"}
     assert {("capture", "capture"), ("processing", "extract"), ("relocalization", "reloc")} <= stages
+
+
+def test_keyboard_enter_relocalizes_and_q_quits(living_room_map, monkeypatch):
+    """On a terminal (a pseudo-terminal here), Enter asks for a relocalization and `q` Enter stops the loop."""
+    import os
+    import sys
+
+    map_planes, reloc = living_room_map
+    master, slave = os.openpty()
+    tty = os.fdopen(slave, "r")
+    monkeypatch.setattr(sys, "stdin", tty)
+    src = sim_source(100, rate=60.0, loop=True)
+    loop = LiveLoop(src, TruthPlanes(src.scene), reloc, params=LiveParams(reloc_period_s=1000.0), map_planes=map_planes,
+                    keyboard=True)
+
+    def typist():
+        _wait(lambda: any(r.ok for r in loop.records()))
+        os.write(master, b"\n")
+        _wait(lambda: any("keypress" in r.trigger for r in loop.records()))
+        os.write(master, b"q\n")
+
+    t = threading.Thread(target=typist)
+    t.start()
+    try:
+        summary = loop.run(duration_s=60.0)
+    finally:
+        t.join()
+        src.close()
+        tty.close()
+        os.close(master)
+    assert [r for r in summary.relocalizations if "keypress" in r.trigger][0].ok
+    assert summary.source_events["end"] == "stopped"
+    assert any("quit requested from the keyboard" in e for e in summary.source_events["events"])
+    assert loop_threads_alive() == []
