@@ -45,6 +45,7 @@ def run(camera, map_spec, serial_url, frames, duration_s, summary_path, config_p
     import signal
     import sys
 
+    from drivers.source import SourceError
     from reloc.atomic import atomic_write_text
     from reloc.config import config_as_dict, load_config
     from reloc.live.factory import (
@@ -86,7 +87,10 @@ def run(camera, map_spec, serial_url, frames, duration_s, summary_path, config_p
                 np.asarray(cfg.camera.T_base_cam).reshape(4, 4),
                 lambda host_ns: clock.host_to_mcu_ns(host_ns) if clock.synced else None)
         else:
-            source = open_camera(camera, cfg, rate=rate, n_frames=frames)
+            try:
+                source = open_camera(camera, cfg, rate=rate, n_frames=frames)
+            except SourceError as exc:  # no device, device lost: the message says what to do
+                raise click.ClickException(str(exc)) from None
         extract = make_extractor(cfg, planes=planes, scene=getattr(source, "scene", None))
         _warm_up(extract, source)
         profiler = Profiler(trace_capacity=200_000 if trace_path else 0)
@@ -128,6 +132,10 @@ def run(camera, map_spec, serial_url, frames, duration_s, summary_path, config_p
                f"{f['source_gaps']} missing from the source, {sum(f['bad'].values())} bad {f['bad'] or ''}".rstrip())
     click.echo(f"relocalizations: {d['relocalizations_ok']} ok, {d['relocalizations_failed']} failed; "
                f"final state {d['tracking']['final_state']}; source {d['source_events']['end']}")
+    if d["source_events"]["end"] == "disconnected":
+        lost = [e for e in d["source_events"]["events"] if "source disconnected" in e]
+        click.echo(f"camera lost and not reconnected: {lost[-1].split('source disconnected: ', 1)[-1] if lost else '?'}",
+                   err=True)
     for e in d["errors"]:
         click.echo(f"error: {e}", err=True)
 
