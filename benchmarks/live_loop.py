@@ -7,10 +7,12 @@ camera computes depth on the device, while rendering here would take ~19 ms of t
 measure the simulator instead of the loop. The loop does everything else live: plane extraction per frame,
 submaps, the tracking check, relocalization at start-up / when lost / every ``live.reloc_period_s``.
 
-Side by side in the same process:
+Side by side in the same process (the same frames, extraction and relocalizer):
 - ``realtime``: paced at ``--rate`` (the robot's situation): frames processed and dropped, end-to-end latency from
   capture to plane set and from capture to relocalized pose (p50/p95/p99), CPU use (process CPU seconds per wall
   second, i.e. cores busy), resident memory after warm-up and at the end (growth must stay under 5%).
+- ``synchronous (baseline)``: one thread doing everything in turn on a camera with its own clock (``--sync-frames``):
+  frames arriving while it extracts or relocalizes are lost, and a relocalization delays every frame behind it.
 - ``fast``: the same frames as fast as the source gives them (``--fast-frames``), with a queue as long as the run
   so that none is dropped: the loop's capacity in frames per second (its latencies include queueing, so they are
   not the real-time figures).
@@ -165,11 +167,69 @@ def _count(items):
     return out
 
 
+def run_synchronous(pool, scene_obj, n_frames, rate_hz, cfg, plane_map, planes_mode):
+    """Baseline: one thread doing everything in turn (take the newest frame, extract, relocalize inline when due).
+
+    The camera runs on its own clock as a real one does: frame ``i`` exists from ``t0 + i / rate_hz`` and a frame
+    not taken before the next one arrives is lost (counted as dropped). Latency is from a frame's arrival to its
+    plane set / pose, as for the threaded loop.
+    """
+    from reloc.live.factory import make_extractor, make_relocalizer
+
+    extract = make_extractor(cfg, planes=planes_mode, scene=scene_obj)
+    reloc = make_relocalizer(plane_map, cfg)
+    for f in pool[:3]:
+        reloc.locate(extract(f).planes)
+    order = list(range(len(pool))) + list(range(len(pool) - 2, 0, -1))
+    period_ns = int(round(1e9 / rate_hz))
+    reloc_period_ns = int(cfg.live.reloc_period_s * 1e9)
+    to_planes, to_pose = [], []
+    processed = ok = 0
+    last = -1
+    next_reloc = None
+    cpu0, t_start = time.process_time(), time.monotonic_ns()
+    while True:
+        now = time.monotonic_ns()
+        i = (now - t_start) // period_ns  # the newest frame that has arrived
+        if i >= n_frames:
+            break
+        if i <= last:
+            time.sleep((t_start + (last + 1) * period_ns - now) / 1e9)
+            continue
+        last = i
+        arrived = t_start + i * period_ns
+        frame = pool[order[i % len(order)]]
+        planes = extract(frame).planes
+        processed += 1
+        to_planes.append((time.monotonic_ns() - arrived) / 1e6)
+        if next_reloc is None or time.monotonic_ns() >= next_reloc:
+            r = reloc.locate(planes)
+            next_reloc = time.monotonic_ns() + reloc_period_ns
+            if r.status == "relocalized":
+                ok += 1
+                to_pose.append((time.monotonic_ns() - arrived) / 1e6)
+    duration = (time.monotonic_ns() - t_start) / 1e9
+
+    def pct(v):
+        return None if not v else {"p50_ms": float(np.percentile(v, 50)), "p95_ms": float(np.percentile(v, 95)),
+                                   "p99_ms": float(np.percentile(v, 99)), "max_ms": float(np.max(v)), "count": len(v)}
+
+    return {
+        "mode": "synchronous (baseline)", "rate": rate_hz, "frames_requested": n_frames, "duration_s": duration,
+        "frames": {"captured": n_frames, "processed": processed, "dropped": n_frames - processed},
+        "fps_processed": processed / duration, "capture_to_planes_ms": pct(to_planes), "capture_to_pose_ms": pct(to_pose),
+        "cpu_s": time.process_time() - cpu0, "cpu_cores_busy": (time.process_time() - cpu0) / duration,
+        "relocalizations": {"ok": ok},
+    }
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--frames", type=int, default=10_000, help="Frames of the real-time run (default 10000).")
     ap.add_argument("--rate", type=float, default=30.0, help="Camera rate of the real-time run, Hz.")
     ap.add_argument("--fast-frames", type=int, default=600, help="Frames of the as-fast-as-possible run (0 = skip).")
+    ap.add_argument("--sync-frames", type=int, default=1800,
+                    help="Frames of the single-threaded baseline at --rate (0 = skip).")
     ap.add_argument("--width", type=int, default=640)
     ap.add_argument("--height", type=int, default=400)
     ap.add_argument("--pool", type=int, default=90, help="Pre-rendered frames (played forward and back).")
@@ -195,6 +255,9 @@ def main(argv=None) -> int:
     runs = []
     runs.append(run_once("realtime", pool, sim_src.scene, args.frames, float(args.rate), cfg, plane_map, map_planes,
                          args.planes, status_every=30))
+    if args.sync_frames:
+        runs.append(run_synchronous(pool, sim_src.scene, args.sync_frames, float(args.rate), cfg, plane_map,
+                                    args.planes))
     if args.fast_frames:
         # A queue as long as the run: nothing is dropped, so frames per second is the loop's capacity.
         runs.append(run_once("fast", pool, sim_src.scene, args.fast_frames, "fast", cfg, plane_map, map_planes,
@@ -211,7 +274,8 @@ def main(argv=None) -> int:
             p(r["capture_to_planes_ms"], "p50_ms"), p(r["capture_to_planes_ms"], "p95_ms"),
             p(r["capture_to_planes_ms"], "p99_ms"), p(r["capture_to_pose_ms"], "p50_ms"),
             p(r["capture_to_pose_ms"], "p95_ms"), p(r["capture_to_pose_ms"], "p99_ms"),
-            r["cpu_cores_busy"], r["rss_mb"]["start"], r["rss_mb"]["end"], 100 * r["rss_mb"]["growth_from_start"],
+            r["cpu_cores_busy"], *((r["rss_mb"]["start"], r["rss_mb"]["end"], 100 * r["rss_mb"]["growth_from_start"])
+                                   if "rss_mb" in r else (None, None, None)),
         ])
     print_table(
         ["run", "captured", "processed", "dropped", "fps", "c->planes p50", "p95", "p99", "c->pose p50", "p95", "p99",
@@ -220,6 +284,8 @@ def main(argv=None) -> int:
         floatfmt=[None, None, None, None, ".1f", ".1f", ".1f", ".1f", ".1f", ".1f", ".1f", ".2f", ".0f", ".0f", ".2f"],
     )
     for r in runs:
+        if "extract_ms" not in r:
+            continue
         rel = r["relocalizations"]
         print(f"{r['mode']}: extract p50 {p(r['extract_ms'], 'p50_ms')} ms, reloc p50 {p(r['reloc_ms'], 'p50_ms')} ms; "
               f"relocalizations {rel['ok']} ok / {rel['failed']} rejected, triggers {rel['triggers']}, "
