@@ -217,7 +217,8 @@ def run_synchronous(pool, scene_obj, n_frames, rate_hz, cfg, plane_map, planes_m
     return {
         "mode": "synchronous (baseline)", "rate": rate_hz, "frames_requested": n_frames, "duration_s": duration,
         "frames": {"captured": n_frames, "processed": processed, "dropped": n_frames - processed},
-        "fps_processed": processed / duration, "capture_to_planes_ms": pct(to_planes), "capture_to_pose_ms": pct(to_pose),
+        "fps_processed": processed / duration, "capture_to_planes_ms": pct(to_planes),
+        "capture_to_pose_ms": pct(to_pose),
         "cpu_s": time.process_time() - cpu0, "cpu_cores_busy": (time.process_time() - cpu0) / duration,
         "relocalizations": {"ok": ok},
     }

@@ -11,15 +11,14 @@
   and ``seq`` keep increasing; the frame that was in flight is lost and counted as dropped by the disconnect).
 
 Rates are per-frame probabilities; ``*_at`` are input frame indices (0-based, counted over the wrapped stream) where
-the fault happens for certain. Every injected fault is counted in :attr:`FaultySource.counts` and the affected ``seq`` numbers are kept in
-:attr:`FaultySource.injected`, so a test can check the consumer's counts against exactly what was injected.
+the fault happens for certain. Every injected fault is counted in :attr:`FaultySource.counts` and the affected
+``seq`` numbers are kept in :attr:`FaultySource.injected`, so a test can check the consumer's counts against exactly what was injected.
 The decisions depend only on the seed and the frame's position in the input, never on timing.
 """
 
 from __future__ import annotations
 
 import threading
-import time
 from dataclasses import replace
 from typing import Iterator
 

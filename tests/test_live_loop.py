@@ -19,7 +19,7 @@ from reloc.live.params import LiveParams
 from reloc.live.submap import SubmapWindow
 from reloc.live.tracking import explained_fraction
 from reloc.matching import Relocalizer
-from reloc.transforms import invert, pose_error
+from reloc.transforms import pose_error
 from sim.ground_truth import planes_in_camera, visible_planes
 
 W, H = 160, 100
@@ -123,7 +123,8 @@ def test_submap_window_moves_every_frame_into_the_newest_camera():
     for f in frames:
         fused.push(visible_planes(f, src.scene), f.T_world_cam, f.seq)
     assert fused.build() is calls[0][0][-1] and len(calls[0][0]) == 2
-    assert np.array_equal(calls[0][1][0], frames[1].T_world_cam) and np.array_equal(calls[0][1][1], frames[2].T_world_cam)
+    assert np.array_equal(calls[0][1][0], frames[1].T_world_cam)
+    assert np.array_equal(calls[0][1][1], frames[2].T_world_cam)
 
 
 def test_explained_fraction_separates_right_and_wrong_poses(living_room_map):
@@ -389,8 +390,9 @@ def test_reloc_run_replays_a_recording_against_a_map_file(tmp_path):
     save_map(tmp_path / "map.npz", PlaneMap(planes, np.ones(len(planes), dtype=np.int64)))
     out = tmp_path / "run.json"
     trace = tmp_path / "run.trace.json"
-    result = CliRunner().invoke(cli, ["run", "--camera", f"replay:{tmp_path / 'seq'}", "--map", str(tmp_path / "map.npz"),
-                                      "--rate", "fast", "--summary", str(out), "--trace", str(trace), "--quiet"])
+    result = CliRunner().invoke(cli, ["run", "--camera", f"replay:{tmp_path / 'seq'}", "--map",
+                                      str(tmp_path / "map.npz"), "--rate", "fast", "--summary", str(out),
+                                      "--trace", str(trace), "--quiet"])
     assert result.exit_code == 0, result.output
     s = json.loads(out.read_text())
     assert s["frames"]["captured"] == 12 and s["source_events"]["end"] == "end_of_stream"

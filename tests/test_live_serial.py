@@ -22,7 +22,6 @@ from reloc.live.factory import TruthPlanes, load_plane_map
 from reloc.live.loop import THREAD_NAMES, LiveLoop
 from reloc.live.params import LiveParams
 from reloc.matching import Relocalizer
-from reloc.transforms import pose_error
 from sim.cameras import resolve_intrinsics
 from sim.noise import make_noise
 from sim.render import render

@@ -117,8 +117,8 @@ def run(camera, map_spec, serial_url, frames, duration_s, summary_path, config_p
             source.close()
 
     d = summary.to_dict()
-    d["command"] = {"camera": camera, "map": map_spec, "serial": url or None, "frames": frames, "duration_s": duration_s,
-                    "rate": rate, "odometry": odometry, "planes": planes, "config_file": config_path}
+    d["command"] = {"camera": camera, "map": map_spec, "serial": url or None, "frames": frames,
+                    "duration_s": duration_s, "rate": rate, "odometry": odometry, "planes": planes, "config_file": config_path}
     d["config"] = config_as_dict(cfg)  # the resolved config that produced this run
     if summary_path:
         atomic_write_text(summary_path, json.dumps(d, indent=1) + "\n")
@@ -134,8 +134,8 @@ def run(camera, map_spec, serial_url, frames, duration_s, summary_path, config_p
                f"final state {d['tracking']['final_state']}; source {d['source_events']['end']}")
     if d["source_events"]["end"] == "disconnected":
         lost = [e for e in d["source_events"]["events"] if "source disconnected" in e]
-        click.echo(f"camera lost and not reconnected: {lost[-1].split('source disconnected: ', 1)[-1] if lost else '?'}",
-                   err=True)
+        why = lost[-1].split("source disconnected: ", 1)[-1] if lost else "?"
+        click.echo(f"camera lost and not reconnected: {why}", err=True)
     for e in d["errors"]:
         click.echo(f"error: {e}", err=True)
 

@@ -48,7 +48,8 @@ class FirmwareSyncedSimSource(FrameSource):
     @classmethod
     def like_firmware_sim(cls, scene_name: str, frames: int, T_base_cam, mcu_time_ns, *, camera: str = "oak-d",
                           trajectory: str = "robot", rate_hz: float = 30.0, seed: int = 0, **kwargs):
-        """The path ``reloc firmware-sim --trajectory T --scene S --frames N --rate-hz R --trajectory-seed K`` drives."""
+        """On the path ``reloc firmware-sim --trajectory T --scene S --frames N --rate-hz R --trajectory-seed K``
+        drives."""
         from firmware_bridge.mcu_sim import SampledPath
         from sim.cameras import resolve_intrinsics
         from sim.scenes import make_scene

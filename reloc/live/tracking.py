@@ -24,7 +24,8 @@ def is_jump(T_odom_prev: np.ndarray, T_odom_now: np.ndarray, max_m: float, max_r
 
 
 def predict_T_map_cam(T_map_cam_ref: np.ndarray, T_odom_cam_ref: np.ndarray, T_odom_cam_now: np.ndarray) -> np.ndarray:
-    """The pose now from the last verified one and odometry: ``T_map_cam_ref @ inv(T_odom_cam_ref) @ T_odom_cam_now``."""
+    """The pose now from the last verified one and odometry:
+    ``T_map_cam_ref @ inv(T_odom_cam_ref) @ T_odom_cam_now``."""
     return T_map_cam_ref @ invert(T_odom_cam_ref) @ T_odom_cam_now
 
 
