@@ -210,3 +210,45 @@ def test_a_request_without_camera_frames_is_answered_not_ready_and_a_blocked_sou
     assert [t.name for t in threading.enumerate() if t.name in THREAD_NAMES] == []
     assert [c.status for c in mcu.pose_checks] == [PoseStatus.NOT_READY]
     assert summary.frames["captured"] == 0 and summary.relocalizations == []
+
+
+def test_a_failing_link_is_counted_and_the_loop_goes_on(living_room):
+    """Errors from the bridge (a driver bug, a dying USB adapter) are counted; frames and relocalizations go on."""
+    scene, map_planes, reloc = living_room
+
+    class FlakyBridge:
+        def __init__(self):
+            self.calls, self.poses = 0, []
+
+        def get_event(self, timeout_s=0.0):
+            self.calls += 1
+            if self.calls % 3 == 0:
+                raise OSError("[Errno 5] Input/output error")
+            time.sleep(timeout_s)
+            return None
+
+        def T_odom_base_at(self, stamp_ns):
+            return None
+
+        def send_pose(self, T_map_base, stamp_ns, **kw):
+            self.poses.append((T_map_base, kw))
+
+        def send_status(self, *a, **kw):
+            pass
+
+        def stats(self):
+            return {"calls": self.calls}
+
+    from drivers.sim_source import SimSource
+
+    src = SimSource("living_room", n_frames=30, camera="oak-d", width=160, height=100, rate=60.0)
+    bridge = FlakyBridge()
+    loop = LiveLoop(src, TruthPlanes(scene), reloc, params=LiveParams(queue_frames=100, T_base_cam=T_BASE_CAM),
+                    map_planes=map_planes, bridge=bridge)
+    summary = loop.run()
+    assert summary.frames["processed"] == 30 and summary.errors == []
+    assert summary.bridge["loop_serial_errors"] > 0 and summary.relocs_ok >= 1
+    # The startup relocalization still reached the link as T_map_base = T_map_cam @ inv(T_base_cam).
+    T_map_cam = next(r.T_map_cam for r in summary.relocalizations if r.ok)
+    sent = [T for T, kw in bridge.poses if kw["status"] == PoseStatus.OK]
+    assert sent and np.allclose(sent[0] @ T_BASE_CAM, T_map_cam)

@@ -283,6 +283,7 @@ class LiveLoop:
         self.odometry_used: Counter[str] = Counter()
         self.odometry_jumps = 0
         self.odometry_resets = 0
+        self.serial_errors = 0
         self.lost_events: Counter[str] = Counter()
         # The latest records (bounded: a robot lost for hours retries several times a second) and run totals.
         self.max_records = 20_000
@@ -652,53 +653,63 @@ class LiveLoop:
         next_status = 0.0
         last_T_map_base = np.eye(4)
         while not self._workers_stop.is_set() or not self._outbox.empty():
-            ev = bridge.get_event(timeout_s=0.02)
-            while ev is not None:
-                if isinstance(ev, RelocRequestEvent):
-                    self._event(f"relocalization requested by the MCU (id {ev.request_id}, reason {ev.reason})")
-                    last = self._last_frame_s
-                    if last is None or time.monotonic() - last > max(1.0, self.params.stall_s):
-                        # No frames are flowing (camera starting, lost or stalled): say so now, do not keep it waiting.
-                        self._post(("reloc", None, self.clock_ns(), 0.0, ev.request_id, "not_ready: no camera frames"))
-                    else:
-                        self.request_relocalization("request", ev.request_id)
-                elif isinstance(ev, BridgeEvent):
-                    if ev.kind in ("odometry_reset", "mcu_reboot"):
-                        self.odometry_resets += 1
-                        self._odom_reset_pending = True
-                    if ev.kind not in ("mcu_alive",):
-                        self._event(f"serial: {ev.kind} {ev.detail}".strip())
-                elif isinstance(ev, OdometryEvent):
-                    pass  # odometry is read from the bridge's buffer at each frame's capture time
-                ev = bridge.get_event(timeout_s=0)
-            while True:
-                try:
-                    item = self._outbox.get_nowait()
-                except queue.Empty:
-                    break
-                with prof.stage("serial.send_pose"):
-                    if item[0] == "tracked":
-                        _, T_map_cam, stamp, score, rid = item
-                        T_map_base = T_map_cam @ self.T_cam_base
-                        bridge.send_pose(T_map_base, stamp, status=PoseStatus.TRACKED, score=score, request_id=rid)
-                    else:
-                        _, T_map_cam, stamp, score, rid, reason = item
-                        if T_map_cam is not None:
-                            last_T_map_base = T_map_cam @ self.T_cam_base
-                            bridge.send_pose(last_T_map_base, stamp, status=PoseStatus.OK,
-                                             score=score if math.isfinite(score) else 0.0, request_id=rid)
-                        elif rid:
-                            # An answer is owed: a rejection with its reason (the pose field holds the last one).
-                            bridge.send_pose(last_T_map_base, stamp, status=_reject_status(reason, PoseStatus),
-                                             score=0.0, request_id=rid)
-            now = time.monotonic()
-            if now >= next_status:
-                next_status = now + 0.5
-                with self._lock:
-                    ok = self.relocs_ok_total
-                    failed = self.relocs_total - ok
-                bridge.send_status(states.get(self.state, HostState.SEARCHING), frames_processed=self.processed,
-                                   relocs_ok=ok, relocs_failed=failed, last_error=self.last_error[:60])
+            try:
+                ev = bridge.get_event(timeout_s=0.02)
+                while ev is not None:
+                    if isinstance(ev, RelocRequestEvent):
+                        self._event(f"relocalization requested by the MCU (id {ev.request_id}, "
+                                    f"reason {ev.reason})")
+                        last = self._last_frame_s
+                        if last is None or time.monotonic() - last > max(1.0, self.params.stall_s):
+                            # No frames are flowing (camera starting, lost or stalled): say so now, do not make the
+                            # firmware wait.
+                            self._post(("reloc", None, self.clock_ns(), 0.0, ev.request_id,
+                                        "not_ready: no camera frames"))
+                        else:
+                            self.request_relocalization("request", ev.request_id)
+                    elif isinstance(ev, BridgeEvent):
+                        if ev.kind in ("odometry_reset", "mcu_reboot"):
+                            self.odometry_resets += 1
+                            self._odom_reset_pending = True
+                        if ev.kind not in ("mcu_alive",):
+                            self._event(f"serial: {ev.kind} {ev.detail}".strip())
+                    elif isinstance(ev, OdometryEvent):
+                        pass  # odometry is read from the bridge's buffer at each frame's capture time
+                    ev = bridge.get_event(timeout_s=0)
+                while True:
+                    try:
+                        item = self._outbox.get_nowait()
+                    except queue.Empty:
+                        break
+                    with prof.stage("serial.send_pose"):
+                        if item[0] == "tracked":
+                            _, T_map_cam, stamp, score, rid = item
+                            T_map_base = T_map_cam @ self.T_cam_base
+                            bridge.send_pose(T_map_base, stamp, status=PoseStatus.TRACKED, score=score,
+                                             request_id=rid)
+                        else:
+                            _, T_map_cam, stamp, score, rid, reason = item
+                            if T_map_cam is not None:
+                                last_T_map_base = T_map_cam @ self.T_cam_base
+                                bridge.send_pose(last_T_map_base, stamp, status=PoseStatus.OK,
+                                                 score=score if math.isfinite(score) else 0.0, request_id=rid)
+                            elif rid:
+                                # An answer is owed: a rejection with its reason (the pose field holds the last one).
+                                bridge.send_pose(last_T_map_base, stamp, status=_reject_status(reason, PoseStatus),
+                                                 score=0.0, request_id=rid)
+                now = time.monotonic()
+                if now >= next_status:
+                    next_status = now + 0.5
+                    with self._lock:
+                        ok = self.relocs_ok_total
+                        failed = self.relocs_total - ok
+                    bridge.send_status(states.get(self.state, HostState.SEARCHING), frames_processed=self.processed,
+                                       relocs_ok=ok, relocs_failed=failed, last_error=self.last_error[:60])
+            except Exception as exc:  # noqa: BLE001 - the link must not take the loop down; count and go on
+                self.serial_errors += 1
+                self.last_error = f"serial: {exc!r}"
+                self._event(f"serial error: {exc!r}")
+                self._workers_stop.wait(0.05)
 
     def _odometry_pose(self, frame: DepthFrame, t_cap: int) -> tuple[np.ndarray | None, str]:
         mode = self.odometry_mode
@@ -795,7 +806,7 @@ class LiveLoop:
         bridge = None
         if self.bridge is not None:
             try:
-                bridge = _jsonable(self.bridge.stats())
+                bridge = {**_jsonable(self.bridge.stats()), "loop_serial_errors": self.serial_errors}
             except Exception as exc:  # noqa: BLE001
                 bridge = {"error": repr(exc)}
         faults = None
