@@ -284,6 +284,7 @@ class LiveLoop:
         self.odometry_jumps = 0
         self.odometry_resets = 0
         self.serial_errors = 0
+        self.reloc_errors = 0  # failures around a query (the query's own errors are records with status "error")
         self.lost_events: Counter[str] = Counter()
         # The latest records (bounded: a robot lost for hours retries several times a second) and run totals.
         self.max_records = 20_000
@@ -459,7 +460,11 @@ class LiveLoop:
                     self._reset_odometry()  # frames across the gap share no odometry we can trust
                 if tag is not None:
                     self.request_relocalization(tag)
-                self._process(frame, t_cap)
+                try:
+                    self._process(frame, t_cap)
+                except Exception as exc:  # noqa: BLE001 - one bad frame never stops the loop
+                    self.bad[f"processing_error:{type(exc).__name__}"] += 1
+                    self.last_error = f"seq {frame.seq}: {exc!r}"
             if not self._stop.is_set():
                 # The source ended: let a pending relocalization finish so its result is reported.
                 self._mailbox.wait_idle(30.0, self._stop)
@@ -582,6 +587,10 @@ class LiveLoop:
                 continue
             try:
                 self._relocalize(job, prof)
+            except Exception as exc:  # noqa: BLE001 - a bad result must not stop relocalizing
+                self.reloc_errors += 1
+                self.last_error = f"relocalization: {exc!r}"
+                self._event(f"relocalization error: {exc!r}")
             finally:
                 self._mailbox.done()
 
@@ -820,6 +829,7 @@ class LiveLoop:
                            "events": list(self.events)},
             odometry={"used": dict(self.odometry_used), "jumps": self.odometry_jumps, "resets": self.odometry_resets},
             tracking={"lost": dict(self.lost_events), "superseded_requests": self._mailbox.superseded,
+                      "relocalization_thread_errors": self.reloc_errors,
                       "final_state": self.state},
             relocalizations=self.records(), relocs_total=self.relocs_total,
             relocs_ok_total=self.relocs_ok_total, latency_ms=latency, end_to_end_ms=e2e, bridge=bridge,
