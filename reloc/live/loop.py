@@ -323,7 +323,8 @@ class LiveLoop:
             self._requests.append((trigger, int(request_id)))
 
     def run(self, *, max_frames: int | None = None, duration_s: float | None = None) -> LiveSummary:
-        """Run until the source ends, ``max_frames`` frames were captured, ``duration_s`` passed, or :meth:`stop`.
+        """Run (once) until the source ends, ``max_frames`` frames were captured, ``duration_s`` passed, or
+        :meth:`stop`.
 
         Frames already queued are still processed and a pending relocalization finishes when the source ends or
         ``max_frames`` is reached; after :meth:`stop`, Ctrl-C or ``duration_s`` the loop stops at once. Every
@@ -333,6 +334,8 @@ class LiveLoop:
             raise ValueError(f"max_frames: expected a positive integer, got {max_frames!r}")
         if duration_s is not None and not duration_s > 0:
             raise ValueError(f"duration_s: expected > 0, got {duration_s!r}")
+        if self._threads:
+            raise RuntimeError("LiveLoop.run: a loop runs once; make a new LiveLoop for another run")
         self._t_start = time.monotonic()
         cpu0 = time.process_time()
         targets = [("capture", lambda: self._capture(max_frames)), ("processing", self._processing),
