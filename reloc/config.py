@@ -160,13 +160,28 @@ class MappingConfig(_Section):
     keyframe_min_translation_m: float = Field(0.2, ge=0, description="A new keyframe after moving this far...")
     keyframe_min_rotation_deg: float = Field(10.0, ge=0, description="...or after turning this much.")
     fuse_max_angle_deg: float = Field(8.0, gt=0, le=90, description="Association: normals within this angle.")
-    fuse_max_offset_m: float = Field(0.06, gt=0, description="Association: offsets within this distance.")
+    fuse_max_offset_m: float = Field(
+        0.03, gt=0, description="Association: the new plane's samples within this distance of the plane (median)."
+    )
     fuse_min_overlap: float = Field(
         0.0, ge=0, le=1, description="Association: samples closer than sample spacing, as a fraction (0 = spheres touch)."
     )
     map_sample_spacing_m: float = Field(0.1, gt=0, description="Voxel size of each map plane's point sample.")
-    min_observations: int = Field(1, ge=1, description="Map planes seen in fewer keyframes are dropped.")
+    min_observations: int = Field(
+        3, ge=1, description="Map planes seen in fewer keyframes are dropped (mostly facets of curved clutter)."
+    )
     submap_window_frames: int = Field(1, ge=1, description="K: frames fused into a submap with their relative poses.")
+    free_space_voxel_m: float = Field(
+        0.15, ge=0, description="Voxel edge of the map's known free space carved along depth rays (0 = none)."
+    )
+    free_space_margin_m: float = Field(
+        0.3, ge=0, description="Rays stop carving this far before their surface (noise, grazing angles)."
+    )
+    free_space_pixel_stride: int = Field(8, ge=1, description="Carve along every n-th pixel's ray in both directions.")
+    free_space_max_range_m: float = Field(5.0, gt=0, description="Rays to farther surfaces carve nothing.")
+    submap_min_observations: int = Field(
+        2, ge=1, description="In submaps of 3+ frames, planes seen in fewer frames are dropped."
+    )
 
 
 class MatchingConfig(_Section):
@@ -192,6 +207,11 @@ class MatchingConfig(_Section):
     )
     gap_tolerance_m: float = Field(
         0.2, ge=0, description="Added to the submap's own distance between two planes to bound the map planes' gap."
+    )
+    extent_tolerance_m: float = Field(
+        0.3, ge=0,
+        description="Where a submap plane lies relative to another of its triplet (signed distances of its samples "
+        "to the other plane) must lie within the map's extents for the pair, give or take this.",
     )
     min_area_ratio: float = Field(
         0.5, gt=0, le=1, description="Map plane area must be at least this times the submap plane area."
@@ -235,8 +255,41 @@ class EvaluationConfig(_Section):
         "large planes and furniture count against it.",
     )
     refine_iterations: int = Field(2, ge=0, le=10, description="Least-squares refinements of the winning pose.")
+    refine_max_angle_deg: float = Field(
+        2.0, gt=0, description="Refinement drops matched pairs whose normals disagree by more than this..."
+    )
+    refine_max_offset_m: float = Field(0.04, gt=0, description="...or whose centroid is farther than this off the plane.")
+    final_max_angle_deg: float = Field(
+        3.0, gt=0, description="The refined pose is verified again with matches within this angle..."
+    )
+    final_max_offset_m: float = Field(
+        0.05, gt=0, description="...and this offset (a true pose is precise; a look-alike only matches loosely)."
+    )
+    min_competitor_fraction: float = Field(
+        0.6, ge=0, le=1,
+        description="Poses explaining at least this fraction compete in the decision (ambiguity test) even though only "
+        "one explaining min_explained_fraction can win: a true pose the map covers badly still blocks a twin.",
+    )
+    min_counted_area_m2: float = Field(
+        0.3, ge=0,
+        description="Submap planes smaller than this count toward the explained fraction only when matched (small "
+        "planes are mostly facets of curved clutter that no map holds).",
+    )
+    free_space: bool = Field(
+        True, description="Reject poses that put a submap plane where the map saw empty space (maps built from depth)."
+    )
+    max_free_fraction: float = Field(
+        0.5, ge=0, le=1,
+        description="An unmatched submap plane (>= min_counted_area_m2) with more of its samples than this in the "
+        "map's known free space contradicts the pose.",
+    )
     scene_uniqueness: bool = Field(True, description="Require tau_m matched planes (off = VR-NS).")
     min_matched_planes: int = Field(5, ge=3, description="tau_m: matched planes a pose needs (paper: 5).")
+    min_direction_support_m2: float = Field(
+        1.0, ge=0,
+        description="Matched planes along the translation's weakest direction must add up to this area: no small "
+        "plane alone may pin the pose along an axis (part of scene uniqueness).",
+    )
     match_max_angle_deg: float = Field(5.0, gt=0, description="A submap plane matches a map plane within this angle...")
     match_max_offset_m: float = Field(0.08, gt=0, description="...and this offset, after the transform.")
     kde_sigma_translation_m: float = Field(0.1, gt=0, description="Eq. 14 information matrix: translation scale.")

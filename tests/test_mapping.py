@@ -45,7 +45,8 @@ def test_plane_fit_from_stats_recovers_a_plane():
     v = np.cross(n, u)
     pts = 2.0 * n + rng.uniform(-1, 1, (500, 1)) * u + rng.uniform(-1, 1, (500, 1)) * v
     pts += rng.normal(0, 0.002, (500, 1)) * n
-    normals, offsets, cents, covs = plane_fit_from_stats(pts.sum(0)[None], (pts.T @ pts)[None], np.array([500]), n[None])
+    normals, offsets, cents, covs = plane_fit_from_stats(pts.sum(0)[None], (pts.T @ pts)[None], np.array([500]),
+                                                         n[None])
     ang, off = plane_errors(np.r_[normals[0], offsets[0]], np.r_[n, -2.0])
     assert ang < 0.1 and off < 0.001
     # The covariance is symmetric, positive semi-definite, and small for 500 points at 2 mm noise.

@@ -11,7 +11,7 @@ import pytest
 from reloc.evaluation.synthetic import furnished_room, look_at, scene_planes, view_planes
 from reloc.matching import MatchingParams, Relocalizer, transform_from_plane_pairs
 from reloc.matching import _kernels as K
-from reloc.matching.index import build_index, horizontal_facing
+from reloc.matching.index import build_index, horizontal_facing, with_dense_extents
 from reloc.matching.selection import (
     candidate_triplets,
     gap_bounds,
@@ -143,15 +143,18 @@ def test_index_gives_the_brute_force_candidates(structural):
     rng = np.random.default_rng(4)
     rects = furnished_room("office")
     params = MatchingParams(structural_constraints=structural)
-    index = build_index(scene_planes(rects), params)
+    map_planes = scene_planes(rects)
+    index = build_index(map_planes, params)
+    dense = with_dense_extents(index, map_planes)
     total = 0
     for T in views(rng, 4):
         sub = view_planes(rects, T, point_noise_m=0.003, normal_noise_deg=0.5, rng=rng)
         facing = horizontal_facing(sub, params.ground_tolerance_rad)
         tri, face0, use_ground = submap_triplets(sub.normals, facing, np.arange(len(sub)), 0, params)
         gaps = gap_bounds(tri, sample_distances(sub.sample_ptr, sub.sample_points.astype(float)), params)
-        fast, gen_fast, _ = candidate_triplets(index, sub.normals, sub.areas, tri, face0, gaps, use_ground, params)
-        slow, gen_slow, _ = candidate_triplets(index, sub.normals, sub.areas, tri, face0, gaps, use_ground, params,
+        ext = K.dense_extents(sub.normals, sub.offsets, sub.sample_ptr, sub.sample_points.astype(float))
+        fast, gen_fast, _ = candidate_triplets(index, sub.normals, sub.areas, tri, face0, gaps, ext, use_ground, params)
+        slow, gen_slow, _ = candidate_triplets(dense, sub.normals, sub.areas, tri, face0, gaps, ext, use_ground, params,
                                                brute_force=True)
         assert {tuple(r) for r in fast} == {tuple(r) for r in slow}
         assert len(fast) == len(slow)

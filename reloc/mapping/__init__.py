@@ -8,7 +8,7 @@ plane sets to one plane set in the latest camera frame). Files: :func:`save_map`
 from reloc.mapping.builder import MapBuilder, MappingParams, SubmapBuilder, build_map, build_submap, select_keyframes
 from reloc.mapping.fusion import FusionParams, PlaneAccumulator, plane_fit_from_stats
 from reloc.mapping.plane_map import MAP_FORMAT, MAP_FORMAT_VERSION, MapFileError, PlaneMap, load_map, save_map
-from reloc.mapping.sources import oracle_source
+from reloc.mapping.sources import extraction_source, oracle_source
 
 __all__ = [
     "MapBuilder",
@@ -27,4 +27,5 @@ __all__ = [
     "load_map",
     "save_map",
     "oracle_source",
+    "extraction_source",
 ]

@@ -3,8 +3,10 @@
 - :func:`select_keyframes`: a frame becomes a keyframe after the camera moved ``keyframe_min_translation_m`` or
   turned ``keyframe_min_rotation_rad`` since the last keyframe (the first frame always is one).
 - :class:`MapBuilder`: per keyframe, planes (camera frame) are moved into the map frame with ``T_map_cam`` and
-  fused (:class:`~reloc.mapping.fusion.PlaneAccumulator`); :meth:`MapBuilder.finish` merges planes that grew
-  together and returns the :class:`~reloc.mapping.plane_map.PlaneMap`.
+  fused (:class:`~reloc.mapping.fusion.PlaneAccumulator`); when the keyframe's depth image is given, the space its
+  rays crossed is carved into a voxel set of known free space (:class:`FreeSpace`), which lets matching tell a
+  plane the map contradicts from one the map never saw. :meth:`MapBuilder.finish` merges planes that grew together
+  and returns the :class:`~reloc.mapping.plane_map.PlaneMap`.
 - :func:`build_map`: the one-shot call over frames with a plane source (extraction, or the simulator's oracle).
 - :func:`build_submap` / :class:`SubmapBuilder`: one frame's planes, or a window of K frames fused with their
   relative (odometry) poses, in the frame of the latest camera, with its gravity.
@@ -24,7 +26,7 @@ from reloc.mapping.plane_map import PlaneMap
 from reloc.planeset import PlaneSet
 from reloc.transforms import check_transform, invert, rotation_angle_rad
 
-__all__ = ["MappingParams", "select_keyframes", "MapBuilder", "build_map", "build_submap", "SubmapBuilder"]
+__all__ = ["MappingParams", "select_keyframes", "FreeSpace", "MapBuilder", "build_map", "build_submap", "SubmapBuilder"]
 
 
 @dataclass(frozen=True)
@@ -32,11 +34,16 @@ class MappingParams:
     keyframe_min_translation_m: float = 0.2
     keyframe_min_rotation_rad: float = math.radians(10.0)
     fuse_max_angle_rad: float = math.radians(8.0)
-    fuse_max_offset_m: float = 0.06
+    fuse_max_offset_m: float = 0.03
     fuse_min_overlap: float = 0.0
     map_sample_spacing_m: float = 0.1
-    min_observations: int = 1
+    min_observations: int = 3
     submap_window_frames: int = 1
+    submap_min_observations: int = 2
+    free_space_voxel_m: float = 0.15
+    free_space_margin_m: float = 0.3
+    free_space_pixel_stride: int = 8
+    free_space_max_range_m: float = 5.0
 
     def __post_init__(self) -> None:
         if self.keyframe_min_translation_m < 0 or self.keyframe_min_rotation_rad < 0:
@@ -44,6 +51,10 @@ class MappingParams:
                              f"{self.keyframe_min_translation_m} m and {self.keyframe_min_rotation_rad} rad")
         if self.min_observations < 1:
             raise ValueError(f"MappingParams.min_observations: expected >= 1, got {self.min_observations}")
+        if self.free_space_voxel_m < 0 or self.free_space_margin_m < 0 or self.free_space_pixel_stride < 1:
+            raise ValueError("MappingParams: free_space_voxel_m and free_space_margin_m must be >= 0 and "
+                             f"free_space_pixel_stride >= 1, got {self.free_space_voxel_m}, "
+                             f"{self.free_space_margin_m}, {self.free_space_pixel_stride}")
         if self.submap_window_frames < 1:
             raise ValueError(f"MappingParams.submap_window_frames: expected >= 1, got {self.submap_window_frames}")
         self.fusion  # validates the fusion thresholds
@@ -65,6 +76,11 @@ class MappingParams:
             map_sample_spacing_m=m.map_sample_spacing_m,
             min_observations=m.min_observations,
             submap_window_frames=m.submap_window_frames,
+            submap_min_observations=m.submap_min_observations,
+            free_space_voxel_m=m.free_space_voxel_m,
+            free_space_margin_m=m.free_space_margin_m,
+            free_space_pixel_stride=m.free_space_pixel_stride,
+            free_space_max_range_m=m.free_space_max_range_m,
         )
 
 
@@ -88,18 +104,70 @@ def select_keyframes(T_world_cams: np.ndarray, min_translation_m: float, min_rot
     return np.array(keep, dtype=np.int64)
 
 
+class FreeSpace:
+    """Voxels (edge ``voxel_m``) that depth rays crossed: space known to be empty, as sorted unique int64 keys."""
+
+    def __init__(self, voxel_m: float, margin_m: float, pixel_stride: int, max_range_m: float):
+        self.voxel_m = voxel_m
+        self.margin_m = margin_m
+        self.pixel_stride = pixel_stride
+        self.max_range_m = max_range_m
+        self._keys = np.zeros(0, np.int64)
+        self._pending: list[np.ndarray] = []
+
+    def carve(self, frame, T_map_cam: np.ndarray) -> None:
+        """Add the free space seen by ``frame`` (a DepthFrame) from ``T_map_cam``."""
+        from reloc.mapping import _kernels as K
+
+        depth = np.ascontiguousarray(frame.depth_m, dtype=np.float32)
+        intr = frame.intrinsics
+        H, W = depth.shape
+        s = self.pixel_stride
+        per_ray = int(self.max_range_m / (0.5 * self.voxel_m)) + 2
+        out = np.empty(((H + s - 1) // s) * ((W + s - 1) // s) * per_ray, np.int64)
+        T = np.asarray(T_map_cam, dtype=np.float64)
+        n = K.carve_free_space(depth, float(intr.fx), float(intr.fy), float(intr.cx), float(intr.cy),
+                               np.ascontiguousarray(T[:3, :3]), np.ascontiguousarray(T[:3, 3]), s, self.voxel_m,
+                               self.margin_m, self.max_range_m, out)
+        self._pending.append(np.unique(out[:n]))
+        if len(self._pending) >= 32:
+            self._flush()
+
+    def _flush(self) -> None:
+        if self._pending:
+            self._keys = np.unique(np.concatenate([self._keys, *self._pending]))
+            self._pending = []
+
+    def keys(self, occupied_points: np.ndarray | None = None) -> np.ndarray:
+        """The free voxel keys, minus the voxels holding or touching ``occupied_points`` (N, 3) (surfaces seen
+        at a grazing angle must never count as free)."""
+        from reloc.mapping.fusion import _neighbours, voxel_keys
+
+        self._flush()
+        keys = self._keys
+        if occupied_points is not None and len(occupied_points) and len(keys):
+            occ = np.unique(_neighbours(np.unique(voxel_keys(occupied_points, self.voxel_m))).ravel())
+            keys = keys[~np.isin(keys, occ, assume_unique=True)]
+        return keys
+
+
 class MapBuilder:
     """Fuses keyframe plane sets into a map; gravity in the map frame is averaged from the keyframes' gravity."""
 
     def __init__(self, params: MappingParams | None = None):
         self.params = params or MappingParams()
         self._acc = PlaneAccumulator(self.params.fusion, frame="map")
+        p = self.params
+        self._free = (FreeSpace(p.free_space_voxel_m, p.free_space_margin_m, p.free_space_pixel_stride,
+                                p.free_space_max_range_m) if p.free_space_voxel_m > 0 else None)
         self._gravity_sum = np.zeros(3)
         self.keyframes = 0
+        self.carved = 0
 
-    def add(self, planes_cam: PlaneSet, T_map_cam: np.ndarray) -> np.ndarray:
-        """Fuse one keyframe's planes (camera frame) seen from ``T_map_cam``; returns their map plane indices
-        (indices into the accumulator, final indices are assigned by :meth:`finish`)."""
+    def add(self, planes_cam: PlaneSet, T_map_cam: np.ndarray, frame=None) -> np.ndarray:
+        """Fuse one keyframe's planes (camera frame) seen from ``T_map_cam``; with ``frame`` (its DepthFrame) also
+        carve the free space it saw. Returns the planes' indices in the accumulator (final indices are assigned by
+        :meth:`finish`)."""
         if not isinstance(planes_cam, PlaneSet):
             raise ValueError(f"planes_cam: expected a PlaneSet, got {type(planes_cam).__name__}")
         T = check_transform(T_map_cam, "T_map_cam")
@@ -107,6 +175,9 @@ class MapBuilder:
         if planes_map.gravity is not None:
             self._gravity_sum += planes_map.gravity
         self.keyframes += 1
+        if frame is not None and self._free is not None:
+            self._free.carve(frame, T)
+            self.carved += 1
         return self._acc.add(planes_map)
 
     def finish(self, meta: dict | None = None) -> PlaneMap:
@@ -117,6 +188,9 @@ class MapBuilder:
         planes, obs = self._acc.to_planeset(gravity=gravity, min_observations=self.params.min_observations)
         info = {"keyframe_count": self.keyframes}
         info.update(meta or {})
+        if self._free is not None and self.carved:
+            free = self._free.keys(planes.sample_points)
+            return PlaneMap(planes, obs, info, free_keys=free, free_voxel_m=self._free.voxel_m)
         return PlaneMap(planes, obs, info)
 
 
@@ -154,7 +228,7 @@ def build_map(
         except ValueError:
             n_failed += 1  # a bad frame is counted, the map goes on
             continue
-        builder.add(planes, T)
+        builder.add(planes, T, frame if getattr(frame, "depth_m", None) is not None else None)
         last = T
     info = {"frame_count": n_frames, "frames_without_pose": n_unposed, "frames_failed": n_failed}
     info.update(meta or {})
@@ -186,12 +260,14 @@ def build_submap(
         T_last_k = T_last_odom @ check_transform(T, f"T_odom_cams[{k}]")
         acc.add(ps.transformed(T_last_k, "cam"))
     acc.merge_pass()
+    # Planes seen in one frame only are dropped from windows of 3+ frames: mostly facets of clutter.
+    min_obs = params.submap_min_observations if len(plane_sets) >= 3 else 1
     gravity = plane_sets[-1].gravity
     if gravity is None:
         gs = [T_last_odom[:3, :3] @ np.asarray(T)[:3, :3] @ ps.gravity for ps, T in zip(plane_sets, T_odom_cams)
               if ps.gravity is not None]
         gravity = np.mean(gs, axis=0) if gs else None
-    planes, _ = acc.to_planeset(gravity=gravity)
+    planes, _ = acc.to_planeset(gravity=gravity, min_observations=min_obs)
     return planes
 
 

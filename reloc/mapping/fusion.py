@@ -3,9 +3,12 @@
 Planes (already in one common frame) are associated with the planes accumulated so far when their normals agree
 within ``max_angle_rad``, the new plane's samples lie within ``max_offset_m`` of the old plane, and the two touch:
 at least ``min_overlap`` of the new plane's sample voxels have a voxel of the old plane among their 26 neighbours
-(0 means one is enough). Associated planes are fused through their sufficient statistics (count, sum of points,
-sum of outer products), so the fused plane is the least-squares plane of all supporting points without revisiting
-them; samples are fused per voxel (sum and count per voxel of edge ``spacing_m``). A new plane touching several
+(0 means one is enough). Associated planes are fused by their information: each input plane's (n, d) with its
+covariance (the robust, noise-weighted fit of extraction) contributes ``I_k = C_k^+``; the fused plane minimizes
+``sum (x - x_k)^T I_k (x - x_k)`` on the unit-normal manifold. The sufficient statistics (count, sum of points,
+sum of outer products) are fused too: they give the centroid, and the plane itself for inputs without a usable
+covariance (the least-squares plane of all supporting points, without revisiting them). Samples are fused per
+voxel (sum and count per voxel of edge ``spacing_m``). A new plane touching several
 accumulated planes merges them all (a wall seen in pieces becomes one plane).
 """
 
@@ -114,6 +117,29 @@ def patch_area(points: np.ndarray, normal: np.ndarray, patch_m: float) -> float:
     return float(len(np.unique(uv, axis=0)) * patch_m**2)
 
 
+def _information(cov: np.ndarray) -> np.ndarray | None:
+    """Information ``C^+`` of a plane's (n, d) covariance (4, 4), or None when the covariance is unusable."""
+    cov = np.asarray(cov, dtype=np.float64)
+    if not np.all(np.isfinite(cov)) or np.trace(cov) <= 0:
+        return None
+    cov = 0.5 * (cov + cov.T)
+    return np.linalg.pinv(cov, rcond=1e-10, hermitian=True)
+
+
+def _fuse_information(info: np.ndarray, info_b: np.ndarray, n0: np.ndarray, d0: float):
+    """The plane minimizing ``sum (x - x_k)^T I_k (x - x_k)`` near ``x0 = (n0, d0)``: one Gauss-Newton step in the
+    tangent space of the unit normal (the direction ``(n0, 0)`` carries no information), then renormalized.
+    Returns ``(n, d, covariance (4, 4))``."""
+    x0 = np.concatenate([n0, [d0]])
+    v = np.concatenate([n0, [0.0]])
+    P = np.eye(4) - np.outer(v, v)
+    A = P @ info @ P
+    cov = np.linalg.pinv(A, rcond=1e-10, hermitian=True)
+    x = x0 + cov @ (P @ (info_b - info @ x0))
+    norm = float(np.linalg.norm(x[:3]))
+    return x[:3] / norm, float(x[3] / norm), cov
+
+
 class PlaneAccumulator:
     """Planes fused across observations, in one frame (the map, or the latest camera of a submap)."""
 
@@ -125,6 +151,8 @@ class PlaneAccumulator:
         self.scatters: list[np.ndarray] = []
         self.counts: list[int] = []
         self.seen_in: list[set] = []  # ids of the observations (add calls) that saw each plane
+        self.info: list[np.ndarray | None] = []  # sum of the (n, d) information matrices, None if any was unusable
+        self.info_b: list[np.ndarray] = []  # sum of I_k x_k
         self.keys: list[np.ndarray] = []  # sorted unique voxel keys of the samples
         self.vsum: list[np.ndarray] = []  # (K, 3) sum of sample points per voxel
         self.vcnt: list[np.ndarray] = []  # (K,) number of sample points per voxel
@@ -164,6 +192,11 @@ class PlaneAccumulator:
     # -- fusion -------------------------------------------------------------------------------------------------
 
     def _refit(self, m: int) -> None:
+        if self.info[m] is not None:
+            n, d, _ = _fuse_information(self.info[m], self.info_b[m], self.normals[m], self.offsets[m])
+            self.normals[m] = n
+            self.offsets[m] = d
+            return
         n, d, _, _ = plane_fit_from_stats(self.sums[m][None], self.scatters[m][None], np.array([self.counts[m]]),
                                           self.normals[m][None])
         self.normals[m] = n[0]
@@ -172,6 +205,11 @@ class PlaneAccumulator:
     def _merge_into(self, dst: int, src: int) -> None:
         self.sums[dst] = self.sums[dst] + self.sums[src]
         self.scatters[dst] = self.scatters[dst] + self.scatters[src]
+        if self.info[dst] is not None and self.info[src] is not None:
+            self.info[dst] = self.info[dst] + self.info[src]
+            self.info_b[dst] = self.info_b[dst] + self.info_b[src]
+        else:
+            self.info[dst] = None
         self.counts[dst] += self.counts[src]
         self.seen_in[dst] |= self.seen_in[src]
         keys = np.concatenate([self.keys[dst], self.keys[src]])
@@ -205,6 +243,10 @@ class PlaneAccumulator:
             self.normals.append(n.copy())
             self.offsets.append(float(planes.offsets[q]))
             self.sums.append(planes.sums[q].copy())
+            info = _information(planes.covariances[q])
+            x = np.concatenate([n, [planes.offsets[q]]])
+            self.info.append(info)
+            self.info_b.append(info @ x if info is not None else np.zeros(4))
             self.scatters.append(planes.scatters[q].copy())
             self.counts.append(int(planes.counts[q]))
             self.seen_in.append({self._obs_id})
@@ -258,6 +300,10 @@ class PlaneAccumulator:
         scat = np.array([self.scatters[m] for m in keep])
         cnt = np.array([self.counts[m] for m in keep], dtype=np.int64)
         normals, offsets, cents, covs = plane_fit_from_stats(sums, scat, cnt, np.array([self.normals[m] for m in keep]))
+        for k, m in enumerate(keep):
+            if self.info[m] is not None:
+                normals[k], offsets[k], covs[k] = _fuse_information(self.info[m], self.info_b[m], self.normals[m],
+                                                                    self.offsets[m])
         samples = [self.vsum[m] / self.vcnt[m][:, None] for m in keep]
         radii = np.array([float(np.linalg.norm(s - c, axis=1).max()) for s, c in zip(samples, cents)])
         patch = area_patch_m or self.params.spacing_m

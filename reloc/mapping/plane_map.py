@@ -1,7 +1,8 @@
 """The global plane map and its file.
 
 A map file is an ``.npz`` archive (read with ``allow_pickle=False``) holding the map's plane set (arrays prefixed
-``plane_``), the number of keyframes that saw each plane (``observations``) and a JSON metadata entry (``meta``,
+``plane_``), the number of keyframes that saw each plane (``observations``), the known free space (``free_keys``,
+sorted voxel keys, voxel edge ``free_voxel_m`` in the metadata; may be empty) and a JSON metadata entry (``meta``,
 UTF-8 bytes): ``format`` ("voxelplane-reloc-map"), ``format_version``, ``config`` (the sections used to build it),
 ``source``, ``frame_count``, ``keyframe_count``, ``plane_count``, ``plane_source`` and ``created_utc``. Files are
 written atomically. Reading a file of another version, a truncated or corrupted file, or a file that is not a map
@@ -40,11 +41,18 @@ class MapFileError(ValueError):
 
 @dataclass(frozen=True)
 class PlaneMap:
-    """Planes of a scene in the map frame (z up), each seen in ``observations[i]`` keyframes, with metadata."""
+    """Planes of a scene in the map frame (z up), each seen in ``observations[i]`` keyframes, with metadata.
+
+    ``free_keys``: sorted int64 keys of the voxels (edge ``free_voxel_m``, keys as
+    :func:`reloc.mapping.fusion.voxel_keys`) that depth rays crossed while mapping: known empty space (empty when
+    the map was built without depth images).
+    """
 
     planes: PlaneSet
     observations: np.ndarray
     meta: dict = field(default_factory=dict)
+    free_keys: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
+    free_voxel_m: float = 0.0
 
     def __post_init__(self) -> None:
         if not isinstance(self.planes, PlaneSet):
@@ -53,6 +61,11 @@ class PlaneMap:
         if obs.shape != (len(self.planes),):
             raise ValueError(f"PlaneMap.observations: expected shape ({len(self.planes)},), got {obs.shape}")
         object.__setattr__(self, "observations", obs)
+        free = np.ascontiguousarray(self.free_keys, dtype=np.int64).reshape(-1)
+        if len(free) and (not self.free_voxel_m > 0 or np.any(np.diff(free) <= 0)):
+            raise ValueError(f"PlaneMap.free_keys: expected sorted unique keys with free_voxel_m > 0, got "
+                             f"{len(free)} keys, free_voxel_m={self.free_voxel_m}")
+        object.__setattr__(self, "free_keys", free)
         if self.planes.frame != "map":
             raise ValueError(f"PlaneMap.planes: expected frame 'map', got {self.planes.frame!r}")
 
@@ -80,6 +93,8 @@ class PlaneMap:
             "bounds_max_m": hi and [round(v, 3) for v in hi],
             "gravity": None if p.gravity is None else [round(float(v), 6) for v in p.gravity],
             "observations_median": float(np.median(self.observations)) if len(self.observations) else 0.0,
+            "free_space_voxels": int(len(self.free_keys)),
+            "free_space_m3": round(float(len(self.free_keys) * self.free_voxel_m**3), 3),
         }
 
 
@@ -93,10 +108,12 @@ def save_map(path, plane_map: PlaneMap) -> Path:
         format=MAP_FORMAT,
         format_version=MAP_FORMAT_VERSION,
         plane_count=len(plane_map),
+        free_voxel_m=float(plane_map.free_voxel_m),
         created_utc=meta.get("created_utc") or _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
     )
     arrays = plane_map.planes.to_arrays(_PREFIX)
     arrays["observations"] = plane_map.observations
+    arrays["free_keys"] = plane_map.free_keys
     arrays["meta"] = np.frombuffer(json.dumps(meta, sort_keys=True).encode("utf-8"), dtype=np.uint8)
     with atomic_write(path, "wb") as fh:
         np.savez_compressed(fh, **arrays)
@@ -139,7 +156,11 @@ def load_map(path) -> PlaneMap:
     try:
         planes = PlaneSet.from_arrays(arrays, _PREFIX, frame="map")
         observations = arrays["observations"]
-        plane_map = PlaneMap(planes, observations, meta)
+        free = arrays["free_keys"]
+        if free.dtype != np.int64:
+            raise ValueError(f"free_keys: expected int64, got {free.dtype}")
+        plane_map = PlaneMap(planes, observations, meta, free_keys=free,
+                             free_voxel_m=float(meta.get("free_voxel_m", 0)))
     except KeyError as exc:
         raise MapFileError(path, f"corrupted: missing array {exc}") from None
     except ValueError as exc:

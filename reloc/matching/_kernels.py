@@ -320,6 +320,58 @@ def _lower_bound(arr, lo, hi, value):
 
 
 @njit
+def signed_range(normals, offsets, ptr, points, a, b):
+    """(lo, hi) signed distances of the samples of plane ``a`` to plane ``b``: where ``a`` lies relative to ``b``.
+
+    A rigid-motion invariant of the pair: what a submap saw of ``a`` lies within what the map holds of it.
+    """
+    lo = math.inf
+    hi = -math.inf
+    nx, ny, nz, d = normals[b, 0], normals[b, 1], normals[b, 2], offsets[b]
+    for s in range(ptr[a], ptr[a + 1]):
+        v = nx * points[s, 0] + ny * points[s, 1] + nz * points[s, 2] + d
+        if v < lo:
+            lo = v
+        if v > hi:
+            hi = v
+    return lo, hi
+
+
+@njit
+def pair_extents(first, second, normals, offsets, ptr, points):
+    """(P, 4) ``[lo, hi]`` of first's samples to second's plane, then of second's samples to first's plane."""
+    P = first.shape[0]
+    out = np.empty((P, 4))
+    for p in range(P):
+        lo, hi = signed_range(normals, offsets, ptr, points, first[p], second[p])
+        out[p, 0] = lo
+        out[p, 1] = hi
+        lo, hi = signed_range(normals, offsets, ptr, points, second[p], first[p])
+        out[p, 2] = lo
+        out[p, 3] = hi
+    return out
+
+
+@njit
+def dense_extents(normals, offsets, ptr, points):
+    """(N, N, 2): ``[a, b]`` the ``(lo, hi)`` of a's samples to b's plane, for every pair (submaps, brute force)."""
+    n = normals.shape[0]
+    out = np.empty((n, n, 2))
+    for a in range(n):
+        for b in range(n):
+            lo, hi = signed_range(normals, offsets, ptr, points, a, b)
+            out[a, b, 0] = lo
+            out[a, b, 1] = hi
+    return out
+
+
+@njit
+def _inside(sub_lo, sub_hi, map_lo, map_hi, tol):
+    """The submap interval lies within the map interval, give or take ``tol``."""
+    return sub_lo >= map_lo - tol and sub_hi <= map_hi + tol
+
+
+@njit
 def _triplet_ok(j0, j1, j2, i0, i1, i2, sub_normals, sub_areas, map_normals, map_centroids, map_radii, map_areas,
                 map_facing, face0, t01, t02, t12, det_s, tol, require_ground, check_gap, g01, g02, g12, check_area,
                 min_area_ratio, min_triple):
@@ -360,14 +412,18 @@ def _triplet_ok(j0, j1, j2, i0, i1, i2, sub_normals, sub_areas, map_normals, map
 
 
 @njit
-def join_candidates(sub_trip, sub_face0, sub_gaps, sub_normals, sub_areas, map_normals, map_centroids, map_radii,
-                    map_areas, map_facing, pair_first, pair_second, pair_angle, adj_ptr, adj_ids, adj_angle, tol,
-                    require_ground, check_gap, check_area, min_area_ratio, min_triple, out):
+def join_candidates(sub_trip, sub_face0, sub_gaps, sub_ext, sub_normals, sub_areas, map_normals, map_centroids,
+                    map_radii, map_areas, map_facing, pair_first, pair_second, pair_angle, pair_ext, adj_ptr, adj_ids,
+                    adj_angle, adj_ext, tol, require_ground, check_gap, check_area, min_area_ratio, min_triple,
+                    check_extent, extent_tol, out):
     """Map triplets agreeing with each submap triplet, found through the pair index.
 
     ``sub_trip`` (T, 3) int32 ``(j0, j1, j2)`` with ``sub_face0`` (T,) int8 and ``sub_gaps`` (T, 3) the gap bounds
     ``(g01, g02, g12)`` of each; the pairs ``(pair_first, pair_second)`` are sorted by
-    ``pair_angle``; ``adj_*`` is the same relation per plane (CSR, each row sorted by angle). For the pair
+    ``pair_angle``; ``adj_*`` is the same relation per plane (CSR, each row sorted by angle; with
+    ``require_ground`` the caller passes the relation restricted to horizontal planes). ``sub_ext`` (S, S, 2) and
+    ``pair_ext``/``adj_ext`` (rows, 4) are the pairs' signed extents (:func:`pair_extents`); with ``check_extent``
+    what the submap saw of the pairs (j1, j2) and (j1, j0) must lie within the map's extents. For the pair
     ``(j1, j2)`` the map pairs ``(i1, i2)`` come from a binary search on the pair angle, and ``i0`` from the rows of
     ``i1`` with the angle of ``(j0, j1)``; every candidate then passes :func:`_triplet_ok`.
     Writes rows ``(j0, j1, j2, i0, i1, i2)`` into ``out`` (cap, 6) int32 and returns
@@ -397,12 +453,24 @@ def join_candidates(sub_trip, sub_face0, sub_gaps, sub_normals, sub_areas, map_n
             if check_area and (map_areas[i1] < min_area_ratio * sub_areas[j1]
                                or map_areas[i2] < min_area_ratio * sub_areas[j2]):
                 continue
+            if check_gap and sphere_gap(map_centroids[i1], map_radii[i1], map_centroids[i2], map_radii[i2]) > g12:
+                continue
+            if check_extent and not (
+                _inside(sub_ext[j1, j2, 0], sub_ext[j1, j2, 1], pair_ext[p, 0], pair_ext[p, 1], extent_tol)
+                and _inside(sub_ext[j2, j1, 0], sub_ext[j2, j1, 1], pair_ext[p, 2], pair_ext[p, 3], extent_tol)
+            ):
+                continue
             a_lo = _lower_bound(adj_angle, adj_ptr[i1], adj_ptr[i1 + 1], t01 - tol)
             for q in range(a_lo, adj_ptr[i1 + 1]):
                 if adj_angle[q] > t01 + tol:
                     break
                 i0 = adj_ids[q]
                 generated += 1
+                if check_extent and not (
+                    _inside(sub_ext[j1, j0, 0], sub_ext[j1, j0, 1], adj_ext[q, 0], adj_ext[q, 1], extent_tol)
+                    and _inside(sub_ext[j0, j1, 0], sub_ext[j0, j1, 1], adj_ext[q, 2], adj_ext[q, 3], extent_tol)
+                ):
+                    continue
                 if _triplet_ok(j0, j1, j2, i0, i1, i2, sub_normals, sub_areas, map_normals, map_centroids, map_radii,
                                map_areas, map_facing, face0, t01, t02, t12, det_s, tol, require_ground, check_gap,
                                g01, g02, g12, check_area, min_area_ratio, min_triple):
@@ -418,9 +486,9 @@ def join_candidates(sub_trip, sub_face0, sub_gaps, sub_normals, sub_areas, map_n
 
 
 @njit
-def brute_force_candidates(sub_trip, sub_face0, sub_gaps, sub_normals, sub_areas, map_normals, map_centroids,
-                           map_radii, map_areas, map_facing, tol, require_ground, check_gap, check_area,
-                           min_area_ratio, min_triple, out):
+def brute_force_candidates(sub_trip, sub_face0, sub_gaps, sub_ext, sub_normals, sub_areas, map_normals,
+                           map_centroids, map_radii, map_areas, map_facing, map_ext, tol, require_ground, check_gap,
+                           check_area, min_area_ratio, min_triple, check_extent, extent_tol, out):
     """The same candidates as :func:`join_candidates` by enumerating every ordered map triplet (O(N^3) per query).
 
     The baseline of the latency benchmark and the reference of the index in the tests.
@@ -446,6 +514,17 @@ def brute_force_candidates(sub_trip, sub_face0, sub_gaps, sub_normals, sub_areas
             for i1 in range(n):
                 for i2 in range(n):
                     generated += 1
+                    if check_extent and not (
+                        _inside(sub_ext[j1, j2, 0], sub_ext[j1, j2, 1], map_ext[i1, i2, 0], map_ext[i1, i2, 1],
+                                extent_tol)
+                        and _inside(sub_ext[j2, j1, 0], sub_ext[j2, j1, 1], map_ext[i2, i1, 0], map_ext[i2, i1, 1],
+                                    extent_tol)
+                        and _inside(sub_ext[j1, j0, 0], sub_ext[j1, j0, 1], map_ext[i1, i0, 0], map_ext[i1, i0, 1],
+                                    extent_tol)
+                        and _inside(sub_ext[j0, j1, 0], sub_ext[j0, j1, 1], map_ext[i0, i1, 0], map_ext[i0, i1, 1],
+                                    extent_tol)
+                    ):
+                        continue
                     if _triplet_ok(j0, j1, j2, i0, i1, i2, sub_normals, sub_areas, map_normals, map_centroids,
                                    map_radii, map_areas, map_facing, face0, t01, t02, t12, det_s, tol, require_ground,
                                    check_gap, g01, g02, g12, check_area, min_area_ratio, min_triple):
@@ -512,9 +591,11 @@ def _cell_of(x, y, z, cell):
 
 @njit
 def verify_transforms(R, t, cand, plane_order, sub_normals, sub_offsets, sub_centroids, sub_areas, vs_ptr, vs_points,
-                      map_normals, map_offsets, map_areas, min_area_ratio, hash_keys, hash_ptr, hash_ids, cell, cos_match, max_offset, inlier_m,
-                      use_projection, min_projection, use_overlap, min_overlap, min_matched, min_explained,
-                      out_match, out_proj, out_over, out_nmatched, out_explained, out_pass):
+                      map_normals, map_offsets, map_areas, min_area_ratio, hash_keys, hash_ptr, hash_ids, cell,
+                      cos_match, max_offset, inlier_m,
+                      use_projection, min_projection, use_overlap, min_overlap, min_matched, min_competitor,
+                      min_counted_area, free_keys, free_voxel, max_free_fraction, require_triplet, out_match, out_proj,
+                      out_over, out_state, out_nmatched, out_explained, out_unknown, out_free, out_pass):
     """Check each transform ``T_map_sub = (R[h], t[h])`` against the map.
 
     For every submap plane j (the three planes of the candidate first, then ``plane_order``), its verification
@@ -524,10 +605,22 @@ def verify_transforms(R, t, cand, plane_order, sub_normals, sub_offsets, sub_cen
     plane's extent), otherwise every map plane is looked at. The projection ratio (Eq. 10) is the fraction of
     samples within ``inlier_m`` of plane i. j matches its best candidate that clears the enabled thresholds and
     whose area is at least ``min_area_ratio`` times j's (a map plane holds what any view saw of it).
-    A hypothesis passes when its three triplet planes match, at least ``min_matched`` distinct map planes match
-    (scene uniqueness) and the matched submap planes weigh at least ``min_explained`` of the total, each plane
+    A hypothesis passes when its three triplet planes match (unless ``require_triplet`` is False: a refined pose
+    is judged on all its planes alike), at least ``min_matched`` distinct map planes match, no plane lies in the
+    map's known free space, and the matched submap planes, with the planes the map knows nothing about, weigh at
+    least ``min_competitor`` of the total: it may be the truth. (Whether it explains enough to be accepted is for
+    the caller to judge from ``out_nmatched`` and ``out_explained``.) Each plane
     weighing the square root of its area (its extent): large planes count more than clutter, but a floor and a
-    wall cannot hide unexplained furniture.
+    wall cannot hide unexplained furniture. Planes smaller than ``min_counted_area`` count only when they match
+    (small planes are mostly facets of curved clutter that no map holds). With ``free_keys`` (sorted voxel keys of
+    the map's known free space, edge ``free_voxel``), an unmatched plane of at least ``min_counted_area`` whose
+    samples fall in free space for more than ``max_free_fraction`` contradicts the map: the hypothesis fails (the
+    map saw empty space where the pose puts a surface). ``out_free`` (H,) counts such planes. ``out_state`` (H, S)
+    int8 says why each plane is unmatched: 0 matched (or not judged), 1 unknown (the map has nothing there: no
+    surface facing the same way, no free space), 2 conflict (other map surfaces facing the same way there), 3 in
+    known free space, 4 too small to count;
+    ``out_unknown`` (H,) is the weight of the unknown planes as a fraction of the total (what the pose might still
+    explain with a more complete map).
 
     Outputs per hypothesis h and submap plane j: ``out_match`` (H, S) int32 map plane or -1, ``out_proj`` and
     ``out_over`` (H, S) float32 ratios; per hypothesis ``out_nmatched`` int32, ``out_explained`` float64,
@@ -541,18 +634,24 @@ def verify_transforms(R, t, cand, plane_order, sub_normals, sub_offsets, sub_cen
     cand_over = np.empty(MAXC, np.int32)
     cand_proj = np.empty(MAXC, np.int32)
     matched_ids = np.empty(S, np.int32)
-    total_area = 0.0
+    large_area = 0.0
     for j in range(S):
-        total_area += math.sqrt(sub_areas[j])
+        if sub_areas[j] >= min_counted_area:
+            large_area += math.sqrt(sub_areas[j])
     n_keys = hash_keys.shape[0]
+    n_free_keys = free_keys.shape[0]
     evaluated = 0
     for h in range(H):
         for j in range(S):
             out_match[h, j] = -1
             out_proj[h, j] = 0.0
             out_over[h, j] = 0.0
+            out_state[h, j] = 0 if sub_areas[j] >= min_counted_area else 4
         n_matched = 0
         explained = 0.0
+        small_matched = 0.0
+        unknown = 0.0
+        n_free = 0
         ok = True
         processed = 0
         for step in range(S + 3):
@@ -658,6 +757,7 @@ def verify_transforms(R, t, cand, plane_order, sub_normals, sub_offsets, sub_cen
             if best >= 0:
                 i = cand_id[best]
                 out_match[h, j] = i
+                out_state[h, j] = 0
                 out_proj[h, j] = best_p if use_projection else 1.0
                 out_over[h, j] = best_o if use_overlap else 1.0
                 seen = False
@@ -669,16 +769,55 @@ def verify_transforms(R, t, cand, plane_order, sub_normals, sub_offsets, sub_cen
                     matched_ids[n_matched] = i
                     n_matched += 1
                 explained += math.sqrt(sub_areas[j])
-            elif step < 3:
+                if sub_areas[j] < min_counted_area:
+                    small_matched += math.sqrt(sub_areas[j])
+            elif step < 3 and require_triplet:
                 ok = False
                 break
+            elif sub_areas[j] >= min_counted_area and m_j > 0:
+                # An unmatched plane that counts: in known free space it contradicts the map; near map surfaces
+                # facing the same way (within 30 deg) it conflicts with them; elsewhere (nothing there, or only
+                # surfaces across it, as at a junction) the map does not know.
+                inside = 0
+                near = 0
+                for s in range(s0, s1):
+                    p = vs_points[s]
+                    px = R[h, 0, 0] * p[0] + R[h, 0, 1] * p[1] + R[h, 0, 2] * p[2] + t[h, 0]
+                    py = R[h, 1, 0] * p[0] + R[h, 1, 1] * p[1] + R[h, 1, 2] * p[2] + t[h, 1]
+                    pz = R[h, 2, 0] * p[0] + R[h, 2, 1] * p[1] + R[h, 2, 2] * p[2] + t[h, 2]
+                    if n_free_keys > 0:
+                        key = _cell_of(px, py, pz, free_voxel)
+                        pos = _lower_bound(free_keys, 0, n_free_keys, key)
+                        if pos < n_free_keys and free_keys[pos] == key:
+                            inside += 1
+                    key = _cell_of(px, py, pz, cell)
+                    pos = _lower_bound(hash_keys, 0, n_keys, key)
+                    if pos < n_keys and hash_keys[pos] == key:
+                        for e in range(hash_ptr[pos], hash_ptr[pos + 1]):
+                            i = hash_ids[e]
+                            if nx * map_normals[i, 0] + ny * map_normals[i, 1] + nz * map_normals[i, 2] >= 0.866:
+                                near += 1
+                                break
+                if inside > max_free_fraction * m_j:
+                    n_free += 1
+                    out_state[h, j] = 3
+                    ok = False
+                    break
+                if near >= 0.5 * m_j:
+                    out_state[h, j] = 2
+                else:
+                    out_state[h, j] = 1
+                    unknown += math.sqrt(sub_areas[j])
             if n_matched + (S - processed) < min_matched:
                 ok = False
                 break
         out_nmatched[h] = n_matched
-        frac = explained / total_area if total_area > 0.0 else 0.0
+        out_free[h] = n_free
+        total = large_area + small_matched
+        frac = explained / total if total > 0.0 else 0.0
         out_explained[h] = frac
-        out_pass[h] = ok and n_matched >= min_matched and frac >= min_explained
+        out_unknown[h] = unknown / total if total > 0.0 else 0.0
+        out_pass[h] = ok and n_matched >= min_matched and frac + out_unknown[h] >= min_competitor
     return evaluated
 
 
@@ -838,10 +977,13 @@ def _warmup() -> None:
     face0 = np.ones(1, np.int8)
     gaps = np.full((1, 3), 10.0)
     out = np.empty((16, 6), np.int32)
-    join_candidates(trip, face0, gaps, normals, areas, normals, centroids, radii, areas, facing, first, second, ang,
-                    adj_ptr, adj_ids, adj_ang, 0.1, True, True, True, 0.5, 0.2, out)
-    brute_force_candidates(trip, face0, gaps, normals, areas, normals, centroids, radii, areas, facing, 0.1, True, True,
-                           True, 0.5, 0.2, out)
+    sptr = np.arange(4, dtype=np.int64)
+    pext = pair_extents(first, second, normals, offsets, sptr, centroids)
+    dext = dense_extents(normals, offsets, sptr, centroids)
+    join_candidates(trip, face0, gaps, dext, normals, areas, normals, centroids, radii, areas, facing, first, second,
+                    ang, pext, adj_ptr, adj_ids, adj_ang, pext, 0.1, True, True, True, 0.5, 0.2, True, 0.3, out)
+    brute_force_candidates(trip, face0, gaps, dext, normals, areas, normals, centroids, radii, areas, facing, dext, 0.1,
+                           True, True, True, 0.5, 0.2, True, 0.3, out)
     cand = np.array([[0, 1, 2, 0, 1, 2]], np.int32)
     Rs = np.empty((1, 3, 3))
     ts = np.empty((1, 3))
@@ -861,11 +1003,15 @@ def _warmup() -> None:
     oo = np.empty((1, S), np.float32)
     on = np.empty(1, np.int32)
     oe = np.empty(1)
+    ou = np.empty(1)
+    ost = np.empty((1, S), np.int8)
+    of = np.empty(1, np.int32)
     ok = np.empty(1, np.bool_)
     for use_overlap in (True, False):
         verify_transforms(Rs, ts, cand, np.arange(3, dtype=np.int32), normals, offsets, centroids, areas, vs_ptr, pts,
-                          normals, offsets, areas, 0.5, uk, hptr, di, 0.25, 0.99, 0.1, 0.05, True, 0.5, use_overlap, 0.3, 3, 0.5,
-                          om, op, oo, on, oe, ok)
+                          normals, offsets, areas, 0.5, uk, hptr, di, 0.25, 0.99, 0.1, 0.05, True, 0.5, use_overlap,
+                          0.3, 3, 0.5,
+                          0.3, uk, 0.25, 0.5, True, om, op, oo, ost, on, oe, ou, of, ok)
     dens = np.empty(1)
     kde_density(Rs, ts, np.ones(1), np.ones(6), dens)
     grp = np.empty(1, np.int32)

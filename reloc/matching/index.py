@@ -24,7 +24,7 @@ from reloc.matching import _kernels as K
 from reloc.matching.params import MatchingParams
 from reloc.planeset import PlaneSet
 
-__all__ = ["MapIndex", "build_index", "horizontal_facing"]
+__all__ = ["MapIndex", "build_index", "horizontal_facing", "with_dense_extents"]
 
 
 def horizontal_facing(planes: PlaneSet, tolerance_rad: float) -> np.ndarray:
@@ -54,12 +54,21 @@ class MapIndex:
     adj_ptr: np.ndarray  # (N + 1,) int64
     adj_ids: np.ndarray  # (P,) int32, rows sorted by angle
     adj_angle: np.ndarray  # (P,) float64
+    hadj_ptr: np.ndarray  # (N + 1,) int64: the same rows restricted to horizontal planes (the anchors)
+    hadj_ids: np.ndarray
+    hadj_angle: np.ndarray
+    pair_ext: np.ndarray  # (P, 4) signed extents of each pair (pair order), see _kernels.pair_extents
+    adj_ext: np.ndarray  # (P, 4) the same in adjacency order
+    hadj_ext: np.ndarray  # (H, 4) the same for the horizontal rows
     hash_keys: np.ndarray  # (C,) int64 sorted unique cell keys
     hash_ptr: np.ndarray  # (C + 1,) int64
     hash_ids: np.ndarray  # (E,) int32 map plane ids per cell
     cell_m: float
     structural: bool
     build_ms: float
+    free_keys: np.ndarray = None  # (F,) sorted int64 voxel keys of the map's known free space (may be empty)
+    free_voxel_m: float = 1.0
+    dense_ext: np.ndarray | None = None  # (N, N, 2) every pair's extents: only for the brute-force baseline
 
     def __len__(self) -> int:
         return int(self.normals.shape[0])
@@ -89,8 +98,10 @@ def _spatial_hash(planes: PlaneSet, cell_m: float) -> tuple[np.ndarray, np.ndarr
     return keys_u.astype(np.int64), ptr, np.ascontiguousarray(both[:, 1].astype(np.int32))
 
 
-def build_index(planes: PlaneSet, params: MatchingParams) -> MapIndex:
-    """Index the map ``planes`` (frame "map", gravity set for the ground constraint) for :mod:`reloc.matching`."""
+def build_index(planes: PlaneSet, params: MatchingParams, *, free_keys: np.ndarray | None = None,
+                free_voxel_m: float = 0.0) -> MapIndex:
+    """Index the map ``planes`` (frame "map", gravity set for the ground constraint) for :mod:`reloc.matching`;
+    ``free_keys`` / ``free_voxel_m``: the map's known free space (:class:`reloc.mapping.PlaneMap`), if any."""
     if not isinstance(planes, PlaneSet):
         raise ValueError(f"planes: expected a PlaneSet, got {type(planes).__name__}")
     t0 = time.perf_counter()
@@ -113,6 +124,21 @@ def build_index(planes: PlaneSet, params: MatchingParams) -> MapIndex:
     np.add.at(adj_ptr, first.astype(np.int64) + 1, 1)
     adj_ptr = np.cumsum(adj_ptr)
     order = np.argsort(ang, kind="stable")
+    facing = horizontal_facing(planes, params.ground_tolerance_rad)
+    # Rows restricted to horizontal second planes: the third plane of a ground-anchored triplet.
+    hsel = facing[adj_ids] != 0
+    hadj_ids = np.ascontiguousarray(adj_ids[hsel])
+    hadj_angle = np.ascontiguousarray(adj_angle[hsel])
+    row_of = np.repeat(np.arange(len(planes)), np.diff(adj_ptr))
+    hadj_ptr = np.zeros(len(planes) + 1, np.int64)
+    np.add.at(hadj_ptr, row_of[hsel] + 1, 1)
+    hadj_ptr = np.cumsum(hadj_ptr)
+    pts = np.ascontiguousarray(planes.sample_points, dtype=np.float64)
+    sptr = planes.sample_ptr
+    row_first = row_of.astype(np.int32)
+    adj_ext = K.pair_extents(row_first, adj_ids, normals, planes.offsets, sptr, pts)
+    pair_ext = K.pair_extents(np.ascontiguousarray(first[order]), np.ascontiguousarray(second[order]), normals,
+                              planes.offsets, sptr, pts)
     keys, ptr, ids = _spatial_hash(planes, params.extent_cell_m)
     return MapIndex(
         normals=normals,
@@ -120,17 +146,34 @@ def build_index(planes: PlaneSet, params: MatchingParams) -> MapIndex:
         centroids=centroids,
         radii=radii,
         areas=np.ascontiguousarray(planes.areas),
-        facing=horizontal_facing(planes, params.ground_tolerance_rad),
+        facing=facing,
         pair_first=np.ascontiguousarray(first[order]),
         pair_second=np.ascontiguousarray(second[order]),
         pair_angle=np.ascontiguousarray(ang[order]),
         adj_ptr=adj_ptr,
         adj_ids=adj_ids,
         adj_angle=adj_angle,
+        hadj_ptr=hadj_ptr,
+        hadj_ids=hadj_ids,
+        hadj_angle=hadj_angle,
+        pair_ext=pair_ext,
+        adj_ext=adj_ext,
+        hadj_ext=np.ascontiguousarray(adj_ext[hsel]),
         hash_keys=keys,
         hash_ptr=ptr,
         hash_ids=ids,
         cell_m=float(params.extent_cell_m),
         structural=structural,
         build_ms=(time.perf_counter() - t0) * 1e3,
+        free_keys=np.ascontiguousarray(free_keys if free_keys is not None else np.zeros(0), dtype=np.int64),
+        free_voxel_m=float(free_voxel_m) if free_voxel_m > 0 else 1.0,
     )
+
+
+def with_dense_extents(index: MapIndex, planes: PlaneSet) -> MapIndex:
+    """``index`` with the (N, N, 2) extents of every pair of ``planes`` (its map), which the brute force needs."""
+    from dataclasses import replace
+
+    dense = K.dense_extents(index.normals, index.offsets, planes.sample_ptr,
+                            np.ascontiguousarray(planes.sample_points, dtype=np.float64))
+    return replace(index, dense_ext=dense)

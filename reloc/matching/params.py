@@ -27,6 +27,7 @@ class MatchingParams:
     pair_angle_tolerance_rad: float = math.radians(6.0)
     max_sphere_gap_m: float = 3.0
     gap_tolerance_m: float = 0.2
+    extent_tolerance_m: float = 0.3
     min_area_ratio: float = 0.5
     min_triple_product: float = 0.2
     max_condition_number: float = 50.0
@@ -41,7 +42,12 @@ class MatchingParams:
     verify_samples_per_plane: int = 12
     scene_uniqueness: bool = True
     min_matched_planes: int = 5
+    min_direction_support_m2: float = 0.5
     min_explained_fraction: float = 0.85
+    min_competitor_fraction: float = 0.6
+    min_counted_area_m2: float = 0.3
+    free_space: bool = True
+    max_free_fraction: float = 0.5
     match_max_angle_rad: float = math.radians(5.0)
     match_max_offset_m: float = 0.08
     # Weights and kernel density (Eq. 12-14) and the decision.
@@ -52,6 +58,10 @@ class MatchingParams:
     distinct_translation_m: float = 0.25
     distinct_rotation_rad: float = math.radians(5.0)
     refine_iterations: int = 2
+    refine_max_angle_rad: float = math.radians(2.0)
+    refine_max_offset_m: float = 0.04
+    final_max_angle_rad: float = math.radians(3.0)
+    final_max_offset_m: float = 0.05
 
     def __post_init__(self) -> None:
         problems = []
@@ -76,6 +86,11 @@ class MatchingParams:
             problems.append(f"min_matched_planes: expected >= 3, got {self.min_matched_planes}")
         if self.verify_samples_per_plane < 1:
             problems.append(f"verify_samples_per_plane: expected >= 1, got {self.verify_samples_per_plane}")
+        if self.min_competitor_fraction > self.min_explained_fraction:
+            problems.append(
+                f"min_competitor_fraction: expected <= min_explained_fraction ({self.min_explained_fraction}), got "
+                f"{self.min_competitor_fraction}"
+            )
         if self.min_ambiguity_ratio < 1:
             problems.append(f"min_ambiguity_ratio: expected >= 1, got {self.min_ambiguity_ratio}")
         if self.max_condition_number <= 1:
@@ -100,6 +115,7 @@ class MatchingParams:
             pair_angle_tolerance_rad=r(m.pair_angle_tolerance_deg),
             max_sphere_gap_m=m.max_sphere_gap_m,
             gap_tolerance_m=m.gap_tolerance_m,
+            extent_tolerance_m=m.extent_tolerance_m,
             min_area_ratio=m.min_area_ratio,
             min_triple_product=m.min_triple_product,
             max_condition_number=m.max_condition_number,
@@ -113,7 +129,12 @@ class MatchingParams:
             verify_samples_per_plane=e.verify_samples_per_plane,
             scene_uniqueness=e.scene_uniqueness,
             min_matched_planes=e.min_matched_planes,
+            min_direction_support_m2=e.min_direction_support_m2,
             min_explained_fraction=e.min_explained_fraction,
+            min_competitor_fraction=e.min_competitor_fraction,
+            min_counted_area_m2=e.min_counted_area_m2,
+            free_space=e.free_space,
+            max_free_fraction=e.max_free_fraction,
             match_max_angle_rad=r(e.match_max_angle_deg),
             match_max_offset_m=e.match_max_offset_m,
             kde_sigma_translation_m=e.kde_sigma_translation_m,
@@ -123,6 +144,10 @@ class MatchingParams:
             distinct_translation_m=e.distinct_translation_m,
             distinct_rotation_rad=r(e.distinct_rotation_deg),
             refine_iterations=e.refine_iterations,
+            refine_max_angle_rad=r(e.refine_max_angle_deg),
+            refine_max_offset_m=e.refine_max_offset_m,
+            final_max_angle_rad=r(e.final_max_angle_deg),
+            final_max_offset_m=e.final_max_offset_m,
         )
 
 

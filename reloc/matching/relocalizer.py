@@ -22,7 +22,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from reloc.matching import _kernels as K
-from reloc.matching.index import MapIndex, build_index, horizontal_facing
+from reloc.matching.index import MapIndex, build_index, horizontal_facing, with_dense_extents
 from reloc.matching.params import MatchingParams
 from reloc.matching.scoring import Decision, decide, ratio
 from reloc.matching.selection import (
@@ -36,7 +36,7 @@ from reloc.matching.transform import rotation_from_normal_pairs, translation_fro
 from reloc.planeset import PlaneSet
 from reloc.transforms import transform_from_rotation_translation
 
-__all__ = ["RelocResult", "Relocalizer", "locate", "STAGES"]
+__all__ = ["RelocResult", "Relocalizer", "Verification", "locate", "support_per_direction", "STAGES"]
 
 RELOCALIZED = "relocalized"
 REJECTED = "rejected"
@@ -96,8 +96,32 @@ def _rejected(reason: str, counts: dict, timings: dict) -> RelocResult:
     return RelocResult(REJECTED, reason, None, 0.0, math.nan, np.zeros((0, 2), np.int64), 0.0, counts, timings)
 
 
+@dataclass(frozen=True)
+class Verification:
+    """What :meth:`Relocalizer.verify` found for H transforms of a submap with S planes.
+
+    Per (hypothesis, submap plane): ``match`` map plane or -1, ``proj`` and ``over`` (Eq. 10-11 ratios), ``state``
+    (0 matched, 1 unknown to the map, 2 conflicting with other map surfaces, 3 in known free space, 4 too small to
+    count). Per hypothesis: ``n_matched`` distinct map planes, ``explained`` and ``unknown`` fractions, ``free``
+    planes in free space, ``passed``. ``evaluated``: (hypothesis, plane) pairs looked at.
+    """
+
+    match: np.ndarray
+    proj: np.ndarray
+    over: np.ndarray
+    state: np.ndarray
+    n_matched: np.ndarray
+    explained: np.ndarray
+    unknown: np.ndarray
+    free: np.ndarray
+    passed: np.ndarray
+    evaluated: int
+
+
 class _Hypotheses:
-    """Verified hypotheses accumulated over the rounds (arrays appended per round)."""
+    """Verified hypotheses that passed, accumulated over the rounds (arrays appended per round)."""
+
+    _FIELDS = ("match", "proj", "over", "state", "n_matched", "explained", "unknown")
 
     def __init__(self, S: int):
         self.R = np.zeros((0, 3, 3))
@@ -106,21 +130,40 @@ class _Hypotheses:
         self.match = np.zeros((0, S), np.int32)
         self.proj = np.zeros((0, S), np.float32)
         self.over = np.zeros((0, S), np.float32)
-        self.nmatched = np.zeros(0, np.int32)
+        self.state = np.zeros((0, S), np.int8)
+        self.n_matched = np.zeros(0, np.int32)
         self.explained = np.zeros(0)
+        self.unknown = np.zeros(0)
 
-    def add(self, keep, R, t, cand, match, proj, over, nmatched, explained) -> None:
+    def add(self, R, t, cand, v: Verification) -> None:
+        keep = v.passed
         self.R = np.concatenate([self.R, R[keep]])
         self.t = np.concatenate([self.t, t[keep]])
         self.cand = np.concatenate([self.cand, cand[keep]])
-        self.match = np.concatenate([self.match, match[keep]])
-        self.proj = np.concatenate([self.proj, proj[keep]])
-        self.over = np.concatenate([self.over, over[keep]])
-        self.nmatched = np.concatenate([self.nmatched, nmatched[keep]])
-        self.explained = np.concatenate([self.explained, explained[keep]])
+        for name in self._FIELDS:
+            setattr(self, name, np.concatenate([getattr(self, name), getattr(v, name)[keep]]))
 
     def __len__(self) -> int:
         return int(self.R.shape[0])
+
+
+def support_per_direction(planes: PlaneSet, match_row: np.ndarray, min_area_m2: float) -> float:
+    """Area (m^2) of the matched planes (each of at least ``min_area_m2``) that constrain the translation along its
+    weakest direction.
+
+    The weakest direction is the eigenvector of ``sum a n n^T`` over the matched planes (area ``a``) with the
+    smallest eigenvalue, as in ICP degeneracy analysis; a plane supports it when its normal is within 60 degrees.
+    A corridor view (floor, ceiling, two walls and one door jamb) is pinned along the corridor by the jamb alone:
+    half a square metre, so one wrong match there would give a confident wrong pose.
+    """
+    js = np.flatnonzero((match_row >= 0) & (planes.areas >= min_area_m2))
+    if len(js) == 0:
+        return 0.0
+    n = planes.normals[js]
+    a = planes.areas[js]
+    vals, vecs = np.linalg.eigh((n * a[:, None]).T @ n)
+    e = vecs[:, 0]
+    return float(a[np.abs(n @ e) >= 0.5].sum())
 
 
 class Relocalizer:
@@ -137,7 +180,11 @@ class Relocalizer:
         self.params = params or MatchingParams()
         self.planes = planes
         self.brute_force = brute_force
-        self.index: MapIndex = build_index(planes, self.params)
+        free = getattr(plane_map, "free_keys", None) if self.params.free_space else None
+        self.index: MapIndex = build_index(planes, self.params, free_keys=free,
+                                           free_voxel_m=getattr(plane_map, "free_voxel_m", 0.0))
+        if brute_force:
+            self.index = with_dense_extents(self.index, planes)
 
     # -- public steps --------------------------------------------------------------------------------------------
 
@@ -162,39 +209,70 @@ class Relocalizer:
         n = K.farthest_point_samples(pts, ptr, m, vs_ptr, vs_pts)
         return used, order, vs_ptr, np.ascontiguousarray(vs_pts[:n])
 
-    def verify(self, used: PlaneSet, vs_ptr, vs_pts, R, t, cand):
-        """Verify transforms ``(R, t)`` of candidates ``cand`` against the map; see ``verify_transforms``."""
+    def verify(self, used: PlaneSet, vs_ptr, vs_pts, R, t, cand, *, require_triplet: bool = True,
+               tight: bool = False) -> Verification:
+        """Verify transforms ``(R, t)`` of candidates ``cand`` against the map; see ``verify_transforms``.
+
+        A hypothesis passes (competes) when it could be the truth: its triplet matches, nothing it places lies in the
+        map's known free space, it matches at least ``min_matched_planes - 1`` map planes, and it explains at least
+        ``min_competitor_fraction`` of the submap counting the planes that land where the map knows nothing. Only a
+        competitor that matches ``min_matched_planes`` and itself explains ``min_explained_fraction`` can win the
+        decision. So a true pose that the map covers badly (it missed a plane there) still competes with a
+        symmetric twin the map happens to cover, and the query is rejected as ambiguous instead of guessed.
+        ``tight`` uses the final tolerances (``final_max_angle_rad``, ``final_max_offset_m``) for the refined pose.
+        """
         p = self.params
         H, S = R.shape[0], len(used)
-        out_match = np.empty((H, S), np.int32)
-        out_proj = np.empty((H, S), np.float32)
-        out_over = np.empty((H, S), np.float32)
-        out_n = np.empty(H, np.int32)
-        out_e = np.empty(H)
-        out_pass = np.empty(H, np.bool_)
-        min_matched = p.min_matched_planes if p.scene_uniqueness else 3
+        out = dict(
+            match=np.empty((H, S), np.int32), proj=np.empty((H, S), np.float32), over=np.empty((H, S), np.float32),
+            state=np.empty((H, S), np.int8), n_matched=np.empty(H, np.int32), explained=np.empty(H),
+            unknown=np.empty(H), free=np.empty(H, np.int32), passed=np.empty(H, np.bool_),
+        )
+        min_matched = max(3, (p.min_matched_planes if p.scene_uniqueness else 3) - 1)
         ix = self.index
         evaluated = K.verify_transforms(
             np.ascontiguousarray(R), np.ascontiguousarray(t), np.ascontiguousarray(cand), np.arange(S, dtype=np.int32),
             used.normals, used.offsets, used.centroids, used.areas, vs_ptr, vs_pts, ix.normals, ix.offsets, ix.areas,
-            p.min_area_ratio if p.structural_constraints else 0.0, ix.hash_keys, ix.hash_ptr, ix.hash_ids, ix.cell_m, math.cos(p.match_max_angle_rad), p.match_max_offset_m,
-            p.projection_inlier_m, p.projection, p.min_projection_ratio, p.overlap, p.min_overlap, min_matched,
-            p.min_explained_fraction, out_match, out_proj, out_over, out_n, out_e, out_pass,
+            p.min_area_ratio if p.structural_constraints else 0.0, ix.hash_keys, ix.hash_ptr, ix.hash_ids, ix.cell_m,
+            math.cos(p.final_max_angle_rad if tight else p.match_max_angle_rad),
+            p.final_max_offset_m if tight else p.match_max_offset_m,
+            min(p.projection_inlier_m, p.final_max_offset_m) if tight else p.projection_inlier_m, p.projection,
+            p.min_projection_ratio, p.overlap, p.min_overlap, min_matched, p.min_competitor_fraction,
+            p.min_counted_area_m2, ix.free_keys, ix.free_voxel_m, p.max_free_fraction,
+            require_triplet, out["match"], out["proj"], out["over"], out["state"], out["n_matched"], out["explained"],
+            out["unknown"], out["free"], out["passed"],
         )
-        return out_match, out_proj, out_over, out_n, out_e, out_pass, int(evaluated)
+        return Verification(**out, evaluated=int(evaluated))
 
     def refine(self, used: PlaneSet, match_row: np.ndarray, proj_row: np.ndarray) -> np.ndarray | None:
-        """Least-squares ``T_map_sub`` over all matched pairs of one hypothesis (weights: area x inlier ratio)."""
+        """Least-squares ``T_map_sub`` over the matched pairs of one hypothesis (weights: area x inlier ratio).
+
+        Robust in two passes: pairs whose normal or centroid disagree with the first solution by more than the
+        refinement tolerances (a small plane matched to a neighbour) are dropped and the pose is solved again.
+        Returns None when fewer than three pairs remain or they do not fix the pose.
+        """
+        p = self.params
         js = np.flatnonzero(match_row >= 0)
-        if len(js) < 3:
-            return None
-        iz = match_row[js]
-        w = used.areas[js] * np.maximum(proj_row[js].astype(np.float64), 1e-3)
-        R, gap = rotation_from_normal_pairs(used.normals[js], self.index.normals[iz], w)
-        t, cond = translation_from_offsets(self.index.normals[iz], used.offsets[js], self.index.offsets[iz], w)
-        if gap <= 1e-9 or not cond <= self.params.max_condition_number:
-            return None
-        return transform_from_rotation_translation(R, t)
+        T = None
+        for _ in range(2):
+            if len(js) < 3:
+                return None
+            iz = match_row[js]
+            w = used.areas[js] * np.maximum(proj_row[js].astype(np.float64), 1e-3)
+            R, gap = rotation_from_normal_pairs(used.normals[js], self.index.normals[iz], w)
+            t, cond = translation_from_offsets(self.index.normals[iz], used.offsets[js], self.index.offsets[iz], w)
+            if gap <= 1e-9 or not cond <= p.max_condition_number:
+                return None
+            T = transform_from_rotation_translation(R, t)
+            n_map = used.normals[js] @ R.T
+            ang = np.arccos(np.clip(np.sum(n_map * self.index.normals[iz], axis=1), -1.0, 1.0))
+            c_map = used.centroids[js] @ R.T + t
+            off = np.abs(np.sum(c_map * self.index.normals[iz], axis=1) + self.index.offsets[iz])
+            keep = (ang <= p.refine_max_angle_rad) & (off <= p.refine_max_offset_m)
+            if keep.all():
+                break
+            js = js[keep]
+        return T
 
     # -- one query -------------------------------------------------------------------------------------------------
 
@@ -206,7 +284,7 @@ class Relocalizer:
         timings = {s: 0.0 for s in STAGES}
         counts = {
             "submap_planes": len(submap), "planes_used": 0, "rounds": 0, "submap_triplets": 0, "generated": 0,
-            "candidates": 0, "degenerate": 0, "verified": 0, "passed": 0, "truncated": 0,
+            "candidates": 0, "degenerate": 0, "verified": 0, "contradicted": 0, "passed": 0, "truncated": 0,
         }
         t_start = time.perf_counter()
         t0 = t_start
@@ -215,6 +293,8 @@ class Relocalizer:
         counts["planes_used"] = S
         facing = horizontal_facing(used, p.ground_tolerance_rad)
         distances = sample_distances(vs_ptr, vs_pts)
+        sub_ext = K.dense_extents(used.normals, used.offsets, used.sample_ptr,
+                                  np.ascontiguousarray(used.sample_points, dtype=np.float64))
         timings["prepare"] = (time.perf_counter() - t0) * 1e3
         min_matched = p.min_matched_planes if p.scene_uniqueness else 3
 
@@ -236,8 +316,8 @@ class Relocalizer:
             tri, face0, use_ground = submap_triplets(used.normals, facing, np.arange(k), prev, p)
             prev = k
             cand, generated, truncated = candidate_triplets(
-                self.index, used.normals, used.areas, tri, face0, gap_bounds(tri, distances, p), use_ground, p,
-                brute_force=self.brute_force,
+                self.index, used.normals, used.areas, tri, face0, gap_bounds(tri, distances, p), sub_ext, use_ground,
+                p, brute_force=self.brute_force,
             )
             counts["submap_triplets"] += len(tri)
             counts["generated"] += generated
@@ -260,14 +340,16 @@ class Relocalizer:
                 timings["transform"] += (t2 - t1) * 1e3
                 if ok.any():
                     R, t, cand = R[ok], t[ok], cand[ok]
-                    match, proj, over, nmatched, explained, passed, _ = self.verify(used, vs_ptr, vs_pts, R, t, cand)
+                    v = self.verify(used, vs_ptr, vs_pts, R, t, cand)
                     counts["verified"] += int(len(R))
-                    counts["passed"] += int(passed.sum())
-                    hyps.add(passed, R, t, cand, match, proj, over, nmatched, explained)
+                    counts["contradicted"] += int(np.count_nonzero(v.free))
+                    counts["passed"] += int(v.passed.sum())
+                    hyps.add(R, t, cand, v)
                 t3 = time.perf_counter()
                 timings["verify"] += (t3 - t2) * 1e3
                 if passed_any := (len(hyps) > 0):
-                    decision = decide(hyps.R, hyps.t, hyps.match, hyps.over, hyps.nmatched, hyps.explained, p)
+                    decision = decide(hyps.R, hyps.t, hyps.match, hyps.over, hyps.n_matched, hyps.explained, p,
+                                      min_matched=min_matched, state=hyps.state)
                 timings["decide"] += (time.perf_counter() - t3) * 1e3
                 if passed_any and decision.accepted:
                     break
@@ -283,12 +365,28 @@ class Relocalizer:
             T_new = self.refine(used, match_row, proj_row)
             if T_new is None:
                 break
-            m, pr, _, _, ex, ok, _ = self.verify(used, vs_ptr, vs_pts, T_new[None, :3, :3], T_new[None, :3, 3],
-                                                 hyps.cand[b: b + 1])
-            if not ok[0]:
+            v = self.verify(used, vs_ptr, vs_pts, T_new[None, :3, :3], T_new[None, :3, 3], hyps.cand[b: b + 1],
+                            require_triplet=False)
+            if not v.passed[0] or v.explained[0] < p.min_explained_fraction or v.n_matched[0] < min_matched:
                 break
-            T, match_row, proj_row, explained = T_new, m[0], pr[0], float(ex[0])
+            T, match_row, proj_row, explained = T_new, v.match[0], v.proj[0], float(v.explained[0])
+        # The refined pose must hold at tight tolerances: a true pose is precise to a centimetre, while a look-alike
+        # (a desk and monitor in another room's corner) matches only within the loose search tolerances.
+        v = self.verify(used, vs_ptr, vs_pts, T[None, :3, :3], T[None, :3, 3], hyps.cand[b: b + 1],
+                        require_triplet=False, tight=True)
         timings["refine"] = (time.perf_counter() - t0) * 1e3
+        if not v.passed[0] or v.explained[0] < p.min_explained_fraction or v.n_matched[0] < min_matched:
+            return finish(_rejected(
+                f"pose does not hold at tight tolerances: {int(v.n_matched[0])} planes, {v.explained[0]:.2f} of the "
+                "submap", counts, timings,
+            ))
+        match_row, proj_row, explained = v.match[0], v.proj[0], float(v.explained[0])
+        weakest = support_per_direction(used, match_row, p.min_counted_area_m2) if p.scene_uniqueness else math.inf
+        if weakest < p.min_direction_support_m2:
+            return finish(_rejected(
+                f"pose weakly constrained: {weakest:.2f} m^2 of matched planes along its weakest direction (needs "
+                f"{p.min_direction_support_m2})", counts, timings,
+            ))
         js = np.flatnonzero(match_row >= 0)
         matched = np.stack([order[js], match_row[js].astype(np.int64)], axis=1)
         return finish(RelocResult(

@@ -86,8 +86,19 @@ def decide(
     n_matched: np.ndarray,
     explained: np.ndarray,
     params: MatchingParams,
+    *,
+    min_matched: int | None = None,
+    state: np.ndarray | None = None,
 ) -> Decision:
-    """Pick the best pose among verified hypotheses, or reject with a reason."""
+    """Pick the best pose among verified hypotheses, or reject with a reason.
+
+    Every hypothesis competes (it may be the truth); only those matching ``min_matched`` planes (default
+    ``params.min_matched_planes``) and explaining ``params.min_explained_fraction`` may win.
+
+    ``state`` (H, S) (see :class:`reloc.matching.relocalizer.Verification`) is accepted for diagnostics: which
+    hypotheses compete was settled by verification (a pose that may be the truth, given what the map does not
+    know, competes), while only a pose that itself explains ``min_explained_fraction`` can win.
+    """
     H = R.shape[0]
     if H == 0:
         return Decision(False, "no hypothesis passed verification", -1, 0.0, 0.0, 0)
@@ -98,8 +109,19 @@ def decide(
     # (otherwise a pose reachable through more map triplets, e.g. via a floor shared with the next room, would win).
     size = np.bincount(group, minlength=n_modes)[group]
     density = pose_density(R, t, w / size, params)
-    # Best: highest density; ties go to the better verified hypothesis.
-    best = int(np.lexsort((-quality, -density))[0])
+    need = params.min_matched_planes if min_matched is None else min_matched
+    eligible = (n_matched >= need) & (explained >= params.min_explained_fraction)
+    if not eligible.any():
+        a = int(np.argmax(quality))
+        return Decision(
+            False,
+            f"no pose explains enough: best {int(n_matched[a])} planes, {explained[a]:.2f} of the submap (needs "
+            f"{need} and {params.min_explained_fraction})",
+            -1, 0.0, 0.0, n_modes,
+        )
+    # Best: the eligible pose of highest density; ties go to the better verified hypothesis.
+    order = np.lexsort((-quality, -density))
+    best = int(order[eligible[order]][0])
     score = float(density[best])
     other = _distinct_from(R, t, best, params)
     runner = float(density[other].max()) if other.any() else 0.0

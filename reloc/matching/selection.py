@@ -27,10 +27,10 @@ __all__ = ["order_submap_planes", "submap_triplets", "gap_bounds", "sample_dista
 def order_submap_planes(planes: PlaneSet, params: MatchingParams) -> np.ndarray:
     """Indices of ``planes`` in incremental input order, at most ``params.max_submap_planes`` of them.
 
-    The ground (the largest plane facing up, else the largest horizontal plane) first; then, while fewer than ``initial_planes`` are chosen, the
-    largest plane whose normal is at least 30 degrees from every chosen one (or, when none is left, the plane most
-    separated in angle); then the others by decreasing area. Ties are broken by the plane's geometry, not its index,
-    so the order does not depend on the order of the input.
+    The ground (the largest plane facing up, else the largest horizontal plane) first; then, while fewer than
+    ``initial_planes`` are chosen, the largest plane whose normal is at least 30 degrees from every chosen one (or,
+    when none is left, the plane most separated in angle); then the others by decreasing area. Ties are broken by
+    the plane's geometry, not its index, so the order does not depend on the order of the input.
     """
     n = len(planes)
     if n == 0:
@@ -138,6 +138,7 @@ def candidate_triplets(
     triplets: np.ndarray,
     face0: np.ndarray,
     gaps: np.ndarray,
+    sub_ext: np.ndarray,
     require_ground: bool,
     params: MatchingParams,
     *,
@@ -145,10 +146,12 @@ def candidate_triplets(
 ) -> tuple[np.ndarray, int, bool]:
     """Candidate correspondences ``(j0, j1, j2, i0, i1, i2)`` (H, 6) int32 for the submap ``triplets``.
 
-    ``face0`` (T,) and ``gaps`` (T, 3) come from :func:`submap_triplets` and :func:`gap_bounds`.
-    Returns ``(candidates, generated, truncated)``: ``generated`` counts the map triplets looked at (the cost of
-    the search), ``truncated`` is True when more than ``params.max_candidates`` agreed (only that many are kept).
-    ``brute_force`` enumerates every ordered map triplet instead of the index; it must give the same rows.
+    ``face0`` (T,) and ``gaps`` (T, 3) come from :func:`submap_triplets` and :func:`gap_bounds`; ``sub_ext``
+    (S, S, 2) from ``_kernels.dense_extents`` on the submap. Returns ``(candidates, generated, truncated)``:
+    ``generated`` counts the map triplets looked at (the cost of the search), ``truncated`` is True when more than
+    ``params.max_candidates`` agreed (only that many are kept). ``brute_force`` enumerates every ordered map
+    triplet instead of the index (the index needs :func:`~reloc.matching.index.with_dense_extents`); it must give
+    the same rows.
     """
     if index.structural != params.structural_constraints:
         raise ValueError(
@@ -165,19 +168,22 @@ def candidate_triplets(
     triplets = np.ascontiguousarray(triplets, dtype=np.int32)
     face0 = np.ascontiguousarray(face0, dtype=np.int8)
     gaps = np.ascontiguousarray(gaps, dtype=np.float64)
-    common = (
-        params.pair_angle_tolerance_rad, bool(require_ground), structural, structural, params.min_area_ratio,
-        params.min_triple_product,
-    )
+    sub_ext = np.ascontiguousarray(sub_ext, dtype=np.float64)
+    flags = (params.pair_angle_tolerance_rad, bool(require_ground), structural, structural, params.min_area_ratio,
+             params.min_triple_product, structural, params.extent_tolerance_m)
     if brute_force:
+        if index.dense_ext is None:
+            raise ValueError("index: the brute force needs the dense pair extents (index.with_dense_extents)")
         count, generated = K.brute_force_candidates(
-            triplets, face0, gaps, sub_normals, sub_areas, index.normals, index.centroids, index.radii, index.areas,
-            index.facing, *common, out,
+            triplets, face0, gaps, sub_ext, sub_normals, sub_areas, index.normals, index.centroids, index.radii,
+            index.areas, index.facing, index.dense_ext, *flags, out,
         )
     else:
+        adj = ((index.hadj_ptr, index.hadj_ids, index.hadj_angle, index.hadj_ext) if require_ground
+               else (index.adj_ptr, index.adj_ids, index.adj_angle, index.adj_ext))
         count, generated = K.join_candidates(
-            triplets, face0, gaps, sub_normals, sub_areas, index.normals, index.centroids, index.radii, index.areas,
-            index.facing, index.pair_first, index.pair_second, index.pair_angle, index.adj_ptr, index.adj_ids,
-            index.adj_angle, *common, out,
+            triplets, face0, gaps, sub_ext, sub_normals, sub_areas, index.normals, index.centroids, index.radii,
+            index.areas, index.facing, index.pair_first, index.pair_second, index.pair_angle, index.pair_ext, *adj,
+            *flags, out,
         )
     return out[: min(count, cap)], int(generated), count > cap

@@ -1,0 +1,134 @@
+"""Outcomes of relocalization queries and the paper-style tables (Table 1, Table 3).
+
+Counting follows the paper, made explicit:
+
+- a positive query (taken in the mapped scene) answered with a pose within ``0.25 m`` and ``5 deg`` of the truth
+  is TP; answered with a wrong pose it is FP; rejected it is FN;
+- a negative query (taken in another scene) rejected is TN; accepted it is FP;
+- a positive query whose view is indistinguishable from another place of the scene (identical rooms, a symmetric
+  room: see :mod:`reloc.evaluation.ambiguity`) has no unique answer: rejected it counts as TN (correct refusal),
+  accepted it counts as FP (a guess), whatever the pose. Such queries are left out of the recall.
+
+Precision ``P = TP / (TP + FP)``, recall ``R = TP / (TP + FN)``.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+__all__ = ["Outcome", "classify", "Summary", "summarize", "format_table", "TP_MAX_TRANSLATION_M",
+           "TP_MAX_ROTATION_DEG"]
+
+TP_MAX_TRANSLATION_M = 0.25
+TP_MAX_ROTATION_DEG = 5.0
+
+
+@dataclass(frozen=True)
+class Outcome:
+    """One query's result: ``label`` is TP, FP, FN or TN; errors are NaN unless a pose was returned for a positive."""
+
+    scene: str
+    query: str
+    positive: bool
+    ambiguous: bool
+    status: str
+    reason: str
+    label: str
+    translation_error_m: float = math.nan
+    rotation_error_deg: float = math.nan
+    total_ms: float = math.nan
+    timings_ms: dict = field(default_factory=dict)
+    counts: dict = field(default_factory=dict)
+
+    def to_dict(self) -> dict:
+        def num(v):
+            return None if v is None or (isinstance(v, float) and not math.isfinite(v)) else round(float(v), 6)
+
+        return {
+            "scene": self.scene, "query": self.query, "positive": self.positive, "ambiguous": self.ambiguous,
+            "status": self.status, "reason": self.reason, "label": self.label,
+            "translation_error_m": num(self.translation_error_m), "rotation_error_deg": num(self.rotation_error_deg),
+            "total_ms": num(self.total_ms), "timings_ms": {k: num(v) for k, v in self.timings_ms.items()},
+            "counts": dict(self.counts),
+        }
+
+
+def classify(positive: bool, ambiguous: bool, relocalized: bool, errors: tuple[float, float] | None) -> str:
+    """TP / FP / FN / TN of one query (see the module docstring)."""
+    if not positive or ambiguous:
+        return "FP" if relocalized else "TN"
+    if not relocalized:
+        return "FN"
+    t_err, r_err = errors
+    return "TP" if t_err <= TP_MAX_TRANSLATION_M and r_err <= TP_MAX_ROTATION_DEG else "FP"
+
+
+@dataclass(frozen=True)
+class Summary:
+    name: str
+    TP: int
+    TN: int
+    FP: int
+    FN: int
+    ambiguous: int
+    precision: float
+    recall: float
+    median_translation_error_m: float
+    median_rotation_error_deg: float
+    mean_ms: float
+    median_ms: float
+    p95_ms: float
+    stage_mean_ms: dict
+
+    def to_dict(self) -> dict:
+        out = {}
+        for k, v in self.__dict__.items():
+            if isinstance(v, float):
+                out[k] = None if not math.isfinite(v) else round(v, 6)
+            else:
+                out[k] = v
+        return out
+
+
+def summarize(name: str, outcomes: list[Outcome]) -> Summary:
+    """Counts, precision, recall, median pose errors of the TPs and times over ``outcomes``."""
+    labels = [o.label for o in outcomes]
+    tp, tn, fp, fn = (labels.count(x) for x in ("TP", "TN", "FP", "FN"))
+    errs = np.array([(o.translation_error_m, o.rotation_error_deg) for o in outcomes if o.label == "TP"]).reshape(-1, 2)
+    times = np.array([o.total_ms for o in outcomes if math.isfinite(o.total_ms)])
+    stages: dict[str, list[float]] = {}
+    for o in outcomes:
+        for k, v in o.timings_ms.items():
+            stages.setdefault(k, []).append(v)
+    return Summary(
+        name=name, TP=tp, TN=tn, FP=fp, FN=fn, ambiguous=sum(o.ambiguous for o in outcomes),
+        precision=tp / (tp + fp) if tp + fp else math.nan,
+        recall=tp / (tp + fn) if tp + fn else math.nan,
+        median_translation_error_m=float(np.median(errs[:, 0])) if len(errs) else math.nan,
+        median_rotation_error_deg=float(np.median(errs[:, 1])) if len(errs) else math.nan,
+        mean_ms=float(times.mean()) if len(times) else math.nan,
+        median_ms=float(np.median(times)) if len(times) else math.nan,
+        p95_ms=float(np.percentile(times, 95)) if len(times) else math.nan,
+        stage_mean_ms={k: float(np.mean(v)) for k, v in stages.items()},
+    )
+
+
+def _fmt(v: float, scale: float = 1.0, digits: int = 2) -> str:
+    return "-" if not math.isfinite(v) else f"{v * scale:.{digits}f}"
+
+
+def format_table(rows: list[Summary], first_column: str = "scene") -> str:
+    """A plain-text table: name, TP TN FP FN, ambiguous, P %, R %, median errors (cm, deg), mean/median ms."""
+    head = (f"{first_column:<16} {'TP':>4} {'TN':>4} {'FP':>4} {'FN':>4} {'amb':>4} {'P[%]':>7} {'R[%]':>7} "
+            f"{'t_err[cm]':>9} {'r_err[deg]':>10} {'mean[ms]':>9} {'med[ms]':>8}")
+    lines = [head, "-" * len(head)]
+    for s in rows:
+        lines.append(
+            f"{s.name:<16} {s.TP:>4} {s.TN:>4} {s.FP:>4} {s.FN:>4} {s.ambiguous:>4} {_fmt(s.precision, 100):>7} "
+            f"{_fmt(s.recall, 100):>7} {_fmt(s.median_translation_error_m, 100):>9} "
+            f"{_fmt(s.median_rotation_error_deg, 1, 3):>10} {_fmt(s.mean_ms, 1, 1):>9} {_fmt(s.median_ms, 1, 1):>8}"
+        )
+    return "\n".join(lines)

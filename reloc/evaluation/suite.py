@@ -1,0 +1,253 @@
+"""The evaluation suite of the paper, on the simulator: maps, positive and negative queries, outcomes.
+
+For each scene: a map from mapping trajectories (a robot tour and a hand-held walk, seed ``map_seed``); positive
+queries from other trajectories of the same scene (robot-like and hand-held, seed ``query_seed``), each a submap
+of ``window_frames`` frames ``window_stride`` apart fused with their relative poses (the ground-truth poses stand
+for odometry); negative queries: ``negatives_per_scene`` queries of the other scenes (the paper adds 20 per
+scene). Every query carries its ground truth and an ambiguity label (:mod:`reloc.evaluation.ambiguity`);
+:mod:`reloc.evaluation.metrics` turns results into TP / TN / FP / FN.
+
+The steps are public (:func:`build_scene_map`, :func:`make_queries`, :func:`evaluate_queries`); :func:`run_suite`
+and :func:`run_ablation` compose them.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field, replace
+from typing import Callable
+
+import numpy as np
+
+from reloc.evaluation.ambiguity import is_ambiguous
+from reloc.evaluation.metrics import Outcome, Summary, classify, summarize
+from reloc.mapping import MappingParams, PlaneMap, build_map, build_submap
+from reloc.matching import MatchingParams, Relocalizer, ablation_params
+from reloc.planeset import PlaneSet
+from reloc.transforms import pose_error
+
+__all__ = ["SCENES", "EvalSpec", "Query", "SceneResult", "make_plane_source", "build_scene_map", "make_queries",
+           "evaluate_queries", "run_suite", "run_ablation"]
+
+SCENES = ("living_room", "office", "apartment", "corridor", "meeting_rooms", "symmetric_room")
+
+
+@dataclass(frozen=True)
+class EvalSpec:
+    """What the suite simulates. Frames are rendered at ``width x height`` (the camera preset resampled)."""
+
+    scenes: tuple[str, ...] = SCENES
+    noise: str = "kinect"
+    camera: str = "kinect"
+    width: int = 160
+    height: int = 120
+    map_trajectories: tuple[tuple[str, int], ...] = (("robot", 3000), ("handheld", 3000))
+    map_seed: int = 1
+    query_kinds: tuple[str, ...] = ("robot", "handheld")
+    queries_per_kind: int = 10
+    query_seed: int = 101
+    query_spacing_frames: int = 150
+    window_frames: int = 40
+    window_stride: int = 3
+    negatives_per_scene: int = 20
+    plane_source: str = "oracle"
+
+    def __post_init__(self) -> None:
+        if self.plane_source not in ("oracle", "extraction"):
+            raise ValueError(f"plane_source: expected 'oracle' or 'extraction', got {self.plane_source!r}")
+        if self.window_frames < 1 or self.window_stride < 1:
+            raise ValueError(f"window_frames, window_stride: expected >= 1, got {self.window_frames}, "
+                             f"{self.window_stride}")
+        if self.query_spacing_frames < self.window_stride * (self.window_frames - 1) + 1:
+            raise ValueError("query_spacing_frames: expected at least the window span "
+                             f"({self.window_stride * (self.window_frames - 1) + 1}), got {self.query_spacing_frames}")
+
+
+@dataclass(frozen=True)
+class Query:
+    scene: str
+    name: str
+    T_world_cam: np.ndarray  # ground truth of the latest camera (the scene's world frame is the map frame)
+    submap: PlaneSet
+    ambiguous: bool
+
+
+@dataclass
+class SceneResult:
+    scene: str
+    map_planes: int
+    map_seconds: float
+    outcomes: list[Outcome] = field(default_factory=list)
+
+    def summary(self) -> Summary:
+        return summarize(self.scene, self.outcomes)
+
+
+def make_plane_source(kind: str, scene, *, extraction=None) -> Callable:
+    """``frame -> PlaneSet``: the simulator's ground truth ("oracle") or the extraction ("extraction", with
+    ``extraction`` its parameters or None for the defaults)."""
+    from reloc.mapping import oracle_source
+
+    if kind == "oracle":
+        return oracle_source(scene)
+    if kind == "extraction":
+        from reloc.mapping.sources import extraction_source
+
+        return extraction_source(extraction)
+    raise ValueError(f"kind: expected 'oracle' or 'extraction', got {kind!r}")
+
+
+def _max_range(noise: str) -> float:
+    from sim.noise import make_noise
+
+    return float(min(make_noise(noise).max_range_m, 100.0))
+
+
+def _frames(scene, poses: np.ndarray, spec: EvalSpec, seed: int) -> list:
+    import sim
+
+    return sim.simulate_frames(scene, poses, noise=spec.noise, camera=spec.camera, seed=seed, width=spec.width,
+                               height=spec.height)
+
+
+def build_scene_map(scene, spec: EvalSpec, source: Callable, mapping: MappingParams | None = None) -> PlaneMap:
+    """The map of ``scene`` from its mapping trajectories (world frame = map frame)."""
+    from sim.trajectories import make_trajectory
+
+    frames = []
+    for k, (kind, n) in enumerate(spec.map_trajectories):
+        poses = make_trajectory(kind, scene, n, spec.map_seed + k)
+        frames += _frames(scene, poses, spec, spec.map_seed * 7919 + k)
+    meta = {"source": f"sim:{scene.name}", "plane_source": spec.plane_source,
+            "trajectories": [list(t) for t in spec.map_trajectories], "seed": spec.map_seed}
+    return build_map(frames, source, mapping or MappingParams(), meta=meta)
+
+
+def make_queries(scene, spec: EvalSpec, source: Callable, mapping: MappingParams | None = None) -> list[Query]:
+    """Positive queries of ``scene``: windows along query trajectories (not the mapping ones)."""
+    from sim.trajectories import make_trajectory
+
+    mapping = mapping or MappingParams()
+    out = []
+    span = spec.window_stride * (spec.window_frames - 1)
+    for k, kind in enumerate(spec.query_kinds):
+        n = spec.queries_per_kind * spec.query_spacing_frames
+        poses = make_trajectory(kind, scene, n, spec.query_seed + k)
+        for q in range(spec.queries_per_kind):
+            end = (q + 1) * spec.query_spacing_frames - 1
+            idx = np.arange(end - span, end + 1, spec.window_stride)
+            frames = _frames(scene, poses[idx], spec, spec.query_seed * 7919 + 100 * k + q)
+            sets = [source(f) for f in frames]
+            submap = build_submap(sets, [f.T_world_cam for f in frames], mapping)
+            amb = is_ambiguous(scene, poses[idx], max_range_m=_max_range(spec.noise))
+            out.append(Query(scene.name, f"{scene.name}/{kind}/{q}", poses[end], submap, amb))
+    return out
+
+
+def evaluate_queries(relocalizer: Relocalizer, queries: list[Query], scene_name: str,
+                     progress: Callable[[int], None] | None = None) -> list[Outcome]:
+    """Relocalize each query in the map of ``scene_name``; queries of other scenes are negatives."""
+    out = []
+    for q in queries:
+        res = relocalizer.locate(q.submap)
+        positive = q.scene == scene_name
+        errors = pose_error(res.T_map_cam, q.T_world_cam) if (positive and res.relocalized) else None
+        label = classify(positive, q.ambiguous and positive, res.relocalized, errors)
+        out.append(Outcome(
+            scene=scene_name, query=q.name, positive=positive, ambiguous=q.ambiguous and positive,
+            status=res.status, reason=res.reason, label=label,
+            translation_error_m=errors[0] if errors else math.nan, rotation_error_deg=errors[1] if errors else math.nan,
+            total_ms=res.timings_ms.get("total", math.nan),
+            timings_ms={k: v for k, v in res.timings_ms.items() if k != "total"}, counts=res.counts,
+        ))
+        if progress is not None:
+            progress(1)
+    return out
+
+
+def _negatives(queries_by_scene: dict[str, list[Query]], scene_name: str, n: int) -> list[Query]:
+    """``n`` queries of the other scenes, spread evenly over them (deterministic)."""
+    pool = [q for s, qs in queries_by_scene.items() if s != scene_name for q in qs]
+    if not pool or n <= 0:
+        return []
+    idx = np.unique(np.linspace(0, len(pool) - 1, min(n, len(pool))).round().astype(int))
+    return [pool[i] for i in idx]
+
+
+def _prepare(spec: EvalSpec, mapping: MappingParams, extraction, progress) -> tuple[dict, dict, dict]:
+    """Maps and queries of every scene: ``(maps, map_seconds, queries_by_scene)``."""
+    from sim.scenes import make_scene
+
+    maps, seconds, queries = {}, {}, {}
+    for name in spec.scenes:
+        scene = make_scene(name)
+        source = make_plane_source(spec.plane_source, scene, extraction=extraction)
+        if progress is not None:
+            progress(0, f"{name}: map")
+        t0 = time.perf_counter()
+        maps[name] = build_scene_map(scene, spec, source, mapping)
+        seconds[name] = time.perf_counter() - t0
+        if progress is not None:
+            progress(1, f"{name}: queries")
+        queries[name] = make_queries(scene, spec, source, mapping)
+        if progress is not None:
+            progress(1, None)
+    return maps, seconds, queries
+
+
+def run_suite(spec: EvalSpec, matching: MatchingParams | None = None, mapping: MappingParams | None = None, *,
+              extraction=None, progress: Callable | None = None) -> list[SceneResult]:
+    """Every scene of ``spec``: its map, its positives and negatives, their outcomes.
+
+    ``progress(n, description)`` is called as work is done (2 steps per scene to prepare, then one per query).
+    """
+    matching = matching or MatchingParams()
+    mapping = mapping or MappingParams()
+    maps, seconds, queries = _prepare(spec, mapping, extraction, progress)
+    results = []
+    for name in spec.scenes:
+        reloc = Relocalizer(maps[name], matching)
+        qs = queries[name] + _negatives(queries, name, spec.negatives_per_scene)
+        step = None if progress is None else (lambda n, _name=name: progress(n, f"{_name}: relocalize"))
+        res = SceneResult(name, len(maps[name]), seconds[name], evaluate_queries(reloc, qs, name, step))
+        results.append(res)
+    return results
+
+
+def run_ablation(spec: EvalSpec, variants: tuple[str, ...], matching: MatchingParams | None = None,
+                 mapping: MappingParams | None = None, *, extraction=None,
+                 progress: Callable | None = None) -> dict[str, list[SceneResult]]:
+    """The suite once per ablation variant (Table 3): matching switches change the relocalizer; VR-NE and VR-NM
+    switch extraction features off, so with the extraction source their maps and queries are rebuilt (with the
+    oracle source they equal Ours)."""
+    matching = matching or MatchingParams()
+    mapping = mapping or MappingParams()
+    prepared = {}
+    out = {}
+    for variant in variants:
+        ext_key = variant if (spec.plane_source == "extraction" and variant in ("VR-NE", "VR-NM")) else "base"
+        if ext_key not in prepared:
+            ext = extraction
+            if ext_key != "base":
+                from reloc.mapping.sources import extraction_ablation
+
+                ext = extraction_ablation(extraction, variant)
+            prepared[ext_key] = _prepare(spec, mapping, ext, progress)
+        maps, seconds, queries = prepared[ext_key]
+        params = ablation_params(matching, variant)
+        results = []
+        for name in spec.scenes:
+            reloc = Relocalizer(maps[name], params)
+            qs = queries[name] + _negatives(queries, name, spec.negatives_per_scene)
+            step = None if progress is None else (lambda n, _v=variant, _n=name: progress(n, f"{_v} {_n}"))
+            results.append(SceneResult(name, len(maps[name]), seconds[name], evaluate_queries(reloc, qs, name, step)))
+        out[variant] = results
+    return out
+
+
+def quick_spec(**changes) -> EvalSpec:
+    """A small suite (two scenes, few queries, short maps) for tests and the demo."""
+    base = EvalSpec(scenes=("living_room", "office"), map_trajectories=(("robot", 500), ("handheld", 500)),
+                    queries_per_kind=4, negatives_per_scene=6)
+    return replace(base, **changes)
