@@ -14,6 +14,10 @@ import click
 # name -> "module:attribute" of a click command or group.
 COMMANDS: dict[str, str] = {
     "config": "reloc.commands.config_cmd:config",
+    "demo": "reloc.commands.demo_cmd:demo",
+    "eval": "reloc.commands.eval_cmd:eval_cmd",
+    "locate": "reloc.commands.locate_cmd:locate",
+    "map": "reloc.commands.map_cmd:map_group",
     "devices": "drivers.commands:devices_cmd",
     "firmware-sim": "firmware_bridge.cli:firmware_sim",
     "planes": "reloc.extraction.cli:planes",

@@ -71,6 +71,7 @@ class Query:
     T_world_cam: np.ndarray  # ground truth of the latest camera (the scene's world frame is the map frame)
     submap: PlaneSet
     ambiguous: bool
+    timings_ms: dict = field(default_factory=dict)  # extraction (mean per frame) and submap building
 
 
 @dataclass
@@ -112,16 +113,27 @@ def _frames(scene, poses: np.ndarray, spec: EvalSpec, seed: int) -> list:
 
 
 def build_scene_map(scene, spec: EvalSpec, source: Callable, mapping: MappingParams | None = None) -> PlaneMap:
-    """The map of ``scene`` from its mapping trajectories (world frame = map frame)."""
+    """The map of ``scene`` from its mapping trajectories (world frame = map frame).
+
+    Keyframes are chosen from the trajectory's poses first (:func:`reloc.mapping.select_keyframes`), so only they
+    are rendered and their planes extracted.
+    """
     from sim.trajectories import make_trajectory
 
+    from reloc.mapping import select_keyframes
+
+    mapping = mapping or MappingParams()
     frames = []
+    n_frames = 0
     for k, (kind, n) in enumerate(spec.map_trajectories):
         poses = make_trajectory(kind, scene, n, spec.map_seed + k)
-        frames += _frames(scene, poses, spec, spec.map_seed * 7919 + k)
+        keep = select_keyframes(poses, mapping.keyframe_min_translation_m, mapping.keyframe_min_rotation_rad)
+        frames += _frames(scene, poses[keep], spec, spec.map_seed * 7919 + k)
+        n_frames += n
     meta = {"source": f"sim:{scene.name}", "plane_source": spec.plane_source,
-            "trajectories": [list(t) for t in spec.map_trajectories], "seed": spec.map_seed}
-    return build_map(frames, source, mapping or MappingParams(), meta=meta)
+            "trajectories": [list(t) for t in spec.map_trajectories], "seed": spec.map_seed,
+            "trajectory_frames": n_frames}
+    return build_map(frames, source, mapping, meta=meta)
 
 
 def make_queries(scene, spec: EvalSpec, source: Callable, mapping: MappingParams | None = None) -> list[Query]:
@@ -138,10 +150,14 @@ def make_queries(scene, spec: EvalSpec, source: Callable, mapping: MappingParams
             end = (q + 1) * spec.query_spacing_frames - 1
             idx = np.arange(end - span, end + 1, spec.window_stride)
             frames = _frames(scene, poses[idx], spec, spec.query_seed * 7919 + 100 * k + q)
+            t0 = time.perf_counter()
             sets = [source(f) for f in frames]
+            t1 = time.perf_counter()
             submap = build_submap(sets, [f.T_world_cam for f in frames], mapping)
+            t2 = time.perf_counter()
             amb = is_ambiguous(scene, poses[idx], max_range_m=_max_range(spec.noise))
-            out.append(Query(scene.name, f"{scene.name}/{kind}/{q}", poses[end], submap, amb))
+            times = {"planes_per_frame": (t1 - t0) * 1e3 / len(frames), "submap": (t2 - t1) * 1e3}
+            out.append(Query(scene.name, f"{scene.name}/{kind}/{q}", poses[end], submap, amb, times))
     return out
 
 
@@ -159,7 +175,8 @@ def evaluate_queries(relocalizer: Relocalizer, queries: list[Query], scene_name:
             status=res.status, reason=res.reason, label=label,
             translation_error_m=errors[0] if errors else math.nan, rotation_error_deg=errors[1] if errors else math.nan,
             total_ms=res.timings_ms.get("total", math.nan),
-            timings_ms={k: v for k, v in res.timings_ms.items() if k != "total"}, counts=res.counts,
+            timings_ms={**{k: v for k, v in res.timings_ms.items() if k != "total"}, **q.timings_ms},
+            counts=res.counts,
         ))
         if progress is not None:
             progress(1)

@@ -1,0 +1,141 @@
+"""``reloc map build SEQ -o map.npz`` and ``reloc map info map.npz``."""
+
+from __future__ import annotations
+
+import click
+
+SOURCES = ("extraction", "oracle")
+
+
+def parse_frames(spec: str | None, n: int) -> range:
+    """Frame indices of ``a:b`` (Python slice semantics, either end optional, negative from the end) or ``i``."""
+    if spec is None:
+        return range(n)
+    text = spec.strip()
+    try:
+        if ":" in text:
+            a, _, b = text.partition(":")
+            return range(n)[slice(int(a) if a.strip() else None, int(b) if b.strip() else None)]
+        i = int(text)
+    except ValueError:
+        raise click.BadParameter(f"expected a:b or an index, got {spec!r}", param_hint="--frames") from None
+    if not -n <= i < n:
+        raise click.BadParameter(f"index {i} outside the {n} frames", param_hint="--frames")
+    return range(n)[i: i + 1 or None]
+
+
+def sequence_plane_source(seq_path: str, kind: str, cfg):
+    """``frame -> PlaneSet`` for frames of the sequence at ``seq_path``: extraction with the config's parameters, or
+    (``oracle``) the simulator's ground truth, for sequences written by ``reloc sim`` (their ``sim.json`` names the
+    scene)."""
+    import json
+    from pathlib import Path
+
+    if kind == "extraction":
+        from reloc.extraction import ExtractionParams
+        from reloc.mapping import extraction_source
+
+        return extraction_source(ExtractionParams.from_config(cfg))
+    meta_path = Path(seq_path) / "sim.json"
+    if not meta_path.is_file():
+        raise click.BadParameter(f"{seq_path}: no sim.json, so no ground truth; use --source extraction",
+                                 param_hint="--source")
+    try:
+        meta = json.loads(meta_path.read_text(encoding="utf-8"))
+        scene_name, scene_seed = meta["scene"], int(meta.get("scene_seed", 0))
+    except (ValueError, KeyError, TypeError) as exc:
+        raise ValueError(f"{meta_path}: cannot read the scene name ({exc})") from None
+    from sim.scenes import make_scene
+
+    from reloc.mapping import oracle_source
+
+    return oracle_source(make_scene(scene_name, scene_seed))
+
+
+def config_sections(cfg, names=("camera", "extraction", "merging", "mapping", "matching", "evaluation")) -> dict:
+    from reloc.config import config_as_dict
+
+    d = config_as_dict(cfg)
+    return {k: d[k] for k in names if k in d}
+
+
+@click.group("map")
+def map_group() -> None:
+    """Build a plane map from a posed sequence, or show what a map file holds."""
+
+
+@map_group.command("build")
+@click.argument("seq", type=click.Path(exists=True))
+@click.option("-o", "--out", "out_path", required=True, type=click.Path(dir_okay=False), help="Map file (.npz).")
+@click.option("--frames", "frames_spec", default=None, metavar="A:B", help="Frames to use (a:b or one index).")
+@click.option("--source", type=click.Choice(SOURCES), default="extraction", show_default=True,
+              help="Planes from extraction, or the simulator's ground truth (sequences written by reloc sim).")
+@click.option("--config", "config_path", type=click.Path(exists=True, dir_okay=False), default=None,
+              help="YAML config (defaults otherwise).")
+@click.option("--quiet", is_flag=True, help="No progress bar.")
+def build(seq, out_path, frames_spec, source, config_path, quiet):
+    """Build the plane map of the posed sequence SEQ (any layout the reader takes) and write it to --out.
+
+    Keyframes are chosen by motion; their planes are moved into the map frame (the sequence's world frame) and
+    fused into one plane per surface; the space their depth rays crossed is kept as known free space. The resolved
+    config is written beside the map (OUT.config.yaml) and recorded in its metadata.
+    """
+    import time
+    from pathlib import Path
+
+    import yaml
+    from tqdm import tqdm
+
+    from drivers.readers import open_sequence
+    from reloc._numba import warm_up
+    from reloc.atomic import atomic_write_text
+    from reloc.config import load_config
+    from reloc.mapping import MappingParams, build_map, save_map
+
+    cfg = load_config(config_path)
+    sequence = open_sequence(seq)
+    idx = parse_frames(frames_spec, len(sequence))
+    if not sequence.has_pose[list(idx)].any():
+        raise click.ClickException(f"{seq}: no frame has a pose; a map needs posed frames (ground truth or odometry)")
+    plane_source = sequence_plane_source(seq, source, cfg)
+    warm_up(("reloc.mapping._kernels", "reloc.extraction.pipeline") if source == "extraction" else
+            ("reloc.mapping._kernels",), quiet=quiet)
+    t0 = time.perf_counter()
+    with tqdm(total=len(idx), desc="map", unit="frame", disable=quiet, leave=False) as bar:
+        frames = (sequence[i] for i in idx)
+        plane_map = build_map(
+            frames, plane_source, MappingParams.from_config(cfg), progress=bar.update,
+            meta={"source": str(Path(seq).resolve()), "sequence_format": sequence.format, "plane_source": source,
+                  "frames": f"{idx.start}:{idx.stop}", "config": config_sections(cfg)},
+        )
+    out = save_map(out_path, plane_map)
+    atomic_write_text(str(out) + ".config.yaml", yaml.safe_dump(config_sections(cfg), sort_keys=False))
+    s = plane_map.summary()
+    click.echo(
+        f"{out}: {s['planes']} planes ({s['horizontal_planes']} horizontal), {s['total_area_m2']} m^2, "
+        f"{s['free_space_m3']} m^3 known free space, from {plane_map.meta['keyframe_count']} keyframes of "
+        f"{plane_map.meta['frame_count']} frames ({plane_map.meta['frames_without_pose']} without pose, "
+        f"{plane_map.meta['frames_failed']} failed) in {time.perf_counter() - t0:.1f} s"
+    )
+
+
+@map_group.command("info")
+@click.argument("map_path", metavar="MAP", type=click.Path(dir_okay=False))
+@click.option("--json", "as_json", is_flag=True, help="Everything as JSON (metadata with its config, summary).")
+def info(map_path, as_json):
+    """Show what the map file MAP holds: planes, extent, free space and how it was made."""
+    import json
+
+    from reloc.mapping import load_map
+
+    plane_map = load_map(map_path)
+    summary = plane_map.summary()
+    if as_json:
+        click.echo(json.dumps({"file": map_path, "summary": summary, "meta": plane_map.meta}, indent=1))
+        return
+    meta = {k: v for k, v in plane_map.meta.items() if k != "config"}
+    click.echo(f"{map_path}")
+    for k, v in summary.items():
+        click.echo(f"  {k}: {v}")
+    for k in sorted(meta):
+        click.echo(f"  {k}: {meta[k]}")

@@ -1,0 +1,165 @@
+"""The main job: simulate a scene, build its map, relocalize positive and negative queries, print the results.
+
+:func:`run_demo` is the whole demo as a function returning its figures (the ``reloc demo`` command prints them and
+writes them as JSON). It uses the evaluation suite's steps (:mod:`reloc.evaluation.suite`) on one scene: the map
+from a robot tour and a hand-held walk, positive queries from other trajectories of the same scene, negative
+queries from another scene, with plane extraction on every frame (or the simulator's ground-truth planes).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import asdict, dataclass, replace
+from typing import Callable
+
+import numpy as np
+
+__all__ = ["DemoSpec", "run_demo", "format_demo"]
+
+
+@dataclass(frozen=True)
+class DemoSpec:
+    scene: str = "living_room"
+    negative_scene: str = "office"
+    plane_source: str = "extraction"
+    noise: str = "kinect"
+    camera: str = "kinect"
+    width: int = 320
+    height: int = 240
+    map_trajectories: tuple[tuple[str, int], ...] = (("robot", 1500), ("handheld", 1500))
+    queries_per_kind: int = 5
+    negatives: int = 10
+    window_frames: int = 20
+    window_stride: int = 3
+    seed: int = 1
+
+
+def _percentiles(values) -> dict:
+    v = np.asarray([x for x in values if x is not None and math.isfinite(x)], dtype=float)
+    if not len(v):
+        return {"median": None, "p95": None, "mean": None}
+    return {"median": round(float(np.median(v)), 3), "p95": round(float(np.percentile(v, 95)), 3),
+            "mean": round(float(v.mean()), 3)}
+
+
+def run_demo(spec: DemoSpec | None = None, cfg=None, *, progress: Callable[[str, int, int], None] | None = None) -> dict:
+    """Run the demo; ``progress(step, done, total)`` is called as it goes. Returns the figures as a JSON-able dict:
+    counts (TP, TN, FP, FN), precision, recall, pose errors, per-stage latency, and the time of each phase."""
+    from sim.scenes import make_scene
+
+    from reloc._numba import warm_up
+    from reloc.config import Config
+    from reloc.evaluation.metrics import summarize
+    from reloc.evaluation.suite import EvalSpec, build_scene_map, evaluate_queries, make_plane_source, make_queries
+    from reloc.mapping import MappingParams
+    from reloc.matching import MatchingParams, Relocalizer
+
+    spec = spec or DemoSpec()
+    cfg = cfg or Config()
+    step = progress or (lambda *_: None)
+    phases = {}
+    t0 = time.perf_counter()
+    step("compile", 0, 1)
+    info = warm_up(("reloc.matching._kernels", "reloc.mapping._kernels", "reloc.extraction.pipeline",
+                    "sim.render"), quiet=True)
+    phases["compile_s"] = time.perf_counter() - t0
+    step("compile", 1, 1)
+
+    extraction = None
+    if spec.plane_source == "extraction":
+        from reloc.extraction import ExtractionParams
+
+        extraction = ExtractionParams.from_config(cfg)
+    mapping = MappingParams.from_config(cfg)
+    matching = MatchingParams.from_config(cfg)
+    base = EvalSpec(scenes=(spec.scene,), noise=spec.noise, camera=spec.camera, width=spec.width, height=spec.height,
+                    map_trajectories=spec.map_trajectories, map_seed=spec.seed, queries_per_kind=spec.queries_per_kind,
+                    query_seed=100 + spec.seed, window_frames=spec.window_frames, window_stride=spec.window_stride,
+                    query_spacing_frames=max(60, spec.window_stride * spec.window_frames + 1),
+                    plane_source=spec.plane_source)
+    scene = make_scene(spec.scene)
+    source = make_plane_source(spec.plane_source, scene, extraction=extraction)
+
+    t = time.perf_counter()
+    step("map", 0, 1)
+    plane_map = build_scene_map(scene, base, source, mapping)
+    phases["map_s"] = time.perf_counter() - t
+    step("map", 1, 1)
+
+    t = time.perf_counter()
+    step("queries", 0, 2)
+    positives = make_queries(scene, base, source, mapping)
+    step("queries", 1, 2)
+    other = make_scene(spec.negative_scene)
+    neg_spec = replace(base, queries_per_kind=max(1, math.ceil(spec.negatives / len(base.query_kinds))),
+                       query_seed=200 + spec.seed)
+    negatives = make_queries(other, neg_spec, make_plane_source(spec.plane_source, other, extraction=extraction),
+                             mapping)[: spec.negatives]
+    phases["queries_s"] = time.perf_counter() - t
+    step("queries", 2, 2)
+
+    t = time.perf_counter()
+    reloc = Relocalizer(plane_map, matching)
+    queries = positives + negatives
+    done = [0]
+
+    def tick(n):
+        done[0] += n
+        step("relocalize", done[0], len(queries))
+
+    outcomes = evaluate_queries(reloc, queries, spec.scene, tick)
+    phases["relocalize_s"] = time.perf_counter() - t
+    phases["total_s"] = time.perf_counter() - t0
+
+    s = summarize(spec.scene, outcomes)
+    stages = sorted({k for o in outcomes for k in o.timings_ms})
+    latency = {k: _percentiles([o.timings_ms.get(k) for o in outcomes]) for k in stages}
+    latency["relocalization_total"] = _percentiles([o.total_ms for o in outcomes])
+    return {
+        "spec": asdict(spec),
+        "map": {"planes": len(plane_map), "keyframes": plane_map.meta.get("keyframe_count"),
+                "free_space_m3": plane_map.summary()["free_space_m3"], "index_ms": round(reloc.index.build_ms, 3)},
+        "queries": {"positive": len(positives), "negative": len(negatives),
+                    "ambiguous": sum(o.ambiguous for o in outcomes)},
+        "counts": {"TP": s.TP, "TN": s.TN, "FP": s.FP, "FN": s.FN},
+        "precision": None if not math.isfinite(s.precision) else round(s.precision, 4),
+        "recall": None if not math.isfinite(s.recall) else round(s.recall, 4),
+        "median_translation_error_m": None if not math.isfinite(s.median_translation_error_m)
+        else round(s.median_translation_error_m, 5),
+        "median_rotation_error_deg": None if not math.isfinite(s.median_rotation_error_deg)
+        else round(s.median_rotation_error_deg, 4),
+        "latency_ms": latency,
+        "phases_s": {k: round(v, 2) for k, v in phases.items()},
+        "numba": {"kernels": info["kernels"], "compiled_cold": info["cold"]},
+        "outcomes": [o.to_dict() for o in outcomes],
+    }
+
+
+def format_demo(result: dict) -> str:
+    """The demo's figures as text: the results table, then per-stage latency."""
+    c = result["counts"]
+    pct = (lambda v: "-" if v is None else f"{100 * v:.1f}")
+    cm = (lambda v: "-" if v is None else f"{100 * v:.2f}")
+    lines = [
+        f"scene {result['spec']['scene']} ({result['spec']['plane_source']} planes): map of {result['map']['planes']} "
+        f"planes from {result['map']['keyframes']} keyframes; {result['queries']['positive']} positive queries "
+        f"({result['queries']['ambiguous']} ambiguous), {result['queries']['negative']} negative "
+        f"(scene {result['spec']['negative_scene']}), submaps of {result['spec']['window_frames']} frames",
+        "",
+        f"{'TP':>4} {'TN':>4} {'FP':>4} {'FN':>4} {'P[%]':>7} {'R[%]':>7} {'t_err[cm]':>10} {'r_err[deg]':>10}",
+        f"{c['TP']:>4} {c['TN']:>4} {c['FP']:>4} {c['FN']:>4} {pct(result['precision']):>7} "
+        f"{pct(result['recall']):>7} {cm(result['median_translation_error_m']):>10} "
+        f"{'-' if result['median_rotation_error_deg'] is None else format(result['median_rotation_error_deg'], '.3f'):>10}",
+        "",
+        f"{'stage':<22} {'median[ms]':>10} {'p95[ms]':>9} {'mean[ms]':>9}",
+    ]
+    for name, v in result["latency_ms"].items():
+        if v["median"] is None:
+            continue
+        lines.append(f"{name:<22} {v['median']:>10.3f} {v['p95']:>9.3f} {v['mean']:>9.3f}")
+    ph = result["phases_s"]
+    lines.append("")
+    lines.append(f"time: compile {ph['compile_s']:.1f} s, map {ph['map_s']:.1f} s, queries {ph['queries_s']:.1f} s, "
+                 f"relocalize {ph['relocalize_s']:.1f} s, total {ph['total_s']:.1f} s")
+    return "\n".join(lines)

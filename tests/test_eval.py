@@ -1,0 +1,94 @@
+"""Evaluation: outcome counting, ambiguity labels, a short end-to-end run on the simulator, and the demo."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pytest
+
+from reloc.evaluation.ambiguity import is_ambiguous, scene_symmetries
+from reloc.evaluation.metrics import Outcome, classify, format_table, summarize
+from reloc.evaluation.suite import quick_spec, run_suite
+
+
+def test_classify_follows_the_paper():
+    assert classify(True, False, True, (0.1, 2.0)) == "TP"
+    assert classify(True, False, True, (0.3, 2.0)) == "FP"  # wrong pose
+    assert classify(True, False, True, (0.1, 6.0)) == "FP"
+    assert classify(True, False, False, None) == "FN"
+    assert classify(False, False, False, None) == "TN"
+    assert classify(False, False, True, None) == "FP"
+    # A view that repeats elsewhere has no unique answer: refusing is right, any pose is a guess.
+    assert classify(True, True, False, None) == "TN"
+    assert classify(True, True, True, (0.0, 0.0)) == "FP"
+
+
+def test_summary_counts_precision_recall_and_errors():
+    def o(label, t=math.nan, r=math.nan, ms=2.0):
+        return Outcome("s", "q", label != "TN", False, "x", "", label, t, r, ms, {"verify": 1.0})
+
+    outs = [o("TP", 0.01, 0.1), o("TP", 0.03, 0.3), o("TP", 0.02, 0.2), o("FN"), o("TN"), o("FP")]
+    s = summarize("s", outs)
+    assert (s.TP, s.TN, s.FP, s.FN) == (3, 1, 1, 1)
+    assert s.precision == pytest.approx(0.75) and s.recall == pytest.approx(0.75)
+    assert s.median_translation_error_m == pytest.approx(0.02)
+    assert s.median_rotation_error_deg == pytest.approx(0.2)
+    assert s.mean_ms == pytest.approx(2.0) and s.stage_mean_ms == {"verify": 1.0}
+    assert "75.00" in format_table([s])
+
+
+def test_ambiguity_labels_come_from_the_scene_geometry():
+    from sim.scenes import make_scene
+    from sim.trajectories import pose_from
+
+    sym = make_scene("symmetric_room")
+    assert len(scene_symmetries(sym)) == 3
+    # In the middle of the four-fold symmetric room every view has a twin.
+    assert is_ambiguous(sym, pose_from(3.0, 1.5, 1.4, 1.2, -0.2))
+    living = make_scene("living_room")
+    assert scene_symmetries(living) == []
+    assert not is_ambiguous(living, pose_from(3.0, 2.0, 1.4, 0.5, -0.2))
+    rooms = make_scene("meeting_rooms")
+    # Looking at the table of the second meeting room, away from its door: identical to the first room's view.
+    assert is_ambiguous(rooms, pose_from(5.12 + 2.5, 4.5, 1.4, math.pi / 2, -0.3))
+
+
+@pytest.fixture(scope="module")
+def quick_results():
+    return run_suite(quick_spec(plane_source="extraction"))
+
+
+def test_short_end_to_end_run_has_no_false_positive(quick_results):
+    """Two scenes, extraction on every frame, 16 positives and 12 negatives (fixed seeds): P = 1.0, R >= 0.75."""
+    outcomes = [o for r in quick_results for o in r.outcomes]
+    s = summarize("all", outcomes)
+    assert s.TP + s.FN == 16 and s.TN + s.FP == 12
+    assert s.FP == 0
+    assert s.recall >= 0.75
+    # Poses of the true positives are accurate to centimetres.
+    assert s.median_translation_error_m < 0.03 and s.median_rotation_error_deg < 0.5
+    for o in outcomes:
+        if o.label == "TP":
+            assert o.translation_error_m < 0.1 and o.rotation_error_deg < 1.0
+        if not o.positive:
+            assert o.status == "rejected" and o.reason
+
+
+def test_demo_runs_and_reports(tmp_path):
+    from reloc.demo import DemoSpec, format_demo, run_demo
+
+    spec = DemoSpec(map_trajectories=(("robot", 300), ("handheld", 300)), queries_per_kind=1, negatives=2,
+                    window_frames=10, width=160, height=120)
+    steps = []
+    result = run_demo(spec, progress=lambda step, done, total: steps.append(step))
+    c = result["counts"]
+    assert c["TP"] + c["FN"] + c["TN"] + c["FP"] == 4
+    assert c["FP"] == 0
+    assert {"compile", "map", "queries", "relocalize"} <= set(steps)
+    assert result["latency_ms"]["relocalization_total"]["median"] > 0
+    text = format_demo(result)
+    assert "TP" in text and "relocalization_total" in text
+    json.loads(json.dumps(result))  # JSON-ready
+    assert np.isfinite(result["phases_s"]["total_s"])
