@@ -906,11 +906,28 @@ def kde_density(R, t, weights, info_diag, out):
     Rrel = np.empty((3, 3))
     trel = np.empty(3)
     xi = np.empty(6)
+    # Pairs farther apart than the kernel reaches (exp(-50)) are skipped before the log map.
+    t_info = info_diag[0]
+    r_info = info_diag[3]
     for a in range(H):
         acc = 0.0
         for b in range(H):
             if weights[b] == 0.0:
                 continue
+            dx = t[a, 0] - t[b, 0]
+            dy = t[a, 1] - t[b, 1]
+            dz = t[a, 2] - t[b, 2]
+            if t_info * (dx * dx + dy * dy + dz * dz) > 200.0:
+                continue
+            tr = 0.0
+            for r in range(3):
+                for c in range(3):
+                    tr += R[a, r, c] * R[b, r, c]
+            ca = 0.5 * (tr - 1.0)
+            if ca < 1.0:
+                ang = math.acos(max(ca, -1.0))
+                if r_info * ang * ang > 50.0:
+                    continue
             relative_log(R[a], t[a], R[b], t[b], Rrel, trel, xi)
             q = 0.0
             for k in range(6):

@@ -90,12 +90,21 @@ def _spatial_hash(planes: PlaneSet, cell_m: float) -> tuple[np.ndarray, np.ndarr
         return np.zeros(0, np.int64), np.zeros(1, np.int64), np.zeros(0, np.int32)
     keys = K.cell_keys(np.ascontiguousarray(pts), cell_m)
     # Unique (cell, plane) first, so the 27-fold dilation works on few entries.
-    pair = np.unique(np.stack([keys, ids.astype(np.int64)], axis=1), axis=0)
-    dk, di = K.dilate_keys(np.ascontiguousarray(pair[:, 0]), np.ascontiguousarray(pair[:, 1].astype(np.int32)))
-    both = np.unique(np.stack([dk, di.astype(np.int64)], axis=1), axis=0)  # sorted by key, then id
-    keys_u, starts = np.unique(both[:, 0], return_index=True)
-    ptr = np.append(starts, both.shape[0]).astype(np.int64)
-    return keys_u.astype(np.int64), ptr, np.ascontiguousarray(both[:, 1].astype(np.int32))
+    keys, ids = _unique_pairs(keys, ids.astype(np.int32))
+    dk, di = K.dilate_keys(keys, ids)
+    dk, di = _unique_pairs(dk, di)  # sorted by key, then id
+    keys_u, starts = np.unique(dk, return_index=True)
+    ptr = np.append(starts, dk.shape[0]).astype(np.int64)
+    return keys_u.astype(np.int64), ptr, np.ascontiguousarray(di)
+
+
+def _unique_pairs(keys: np.ndarray, ids: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Unique (key, id) pairs sorted by key then id (a lexsort: much faster than ``np.unique(axis=0)``)."""
+    order = np.lexsort((ids, keys))
+    k, i = keys[order], ids[order]
+    keep = np.ones(len(k), dtype=bool)
+    keep[1:] = (k[1:] != k[:-1]) | (i[1:] != i[:-1])
+    return np.ascontiguousarray(k[keep]), np.ascontiguousarray(i[keep])
 
 
 def build_index(planes: PlaneSet, params: MatchingParams, *, free_keys: np.ndarray | None = None,
@@ -135,10 +144,9 @@ def build_index(planes: PlaneSet, params: MatchingParams, *, free_keys: np.ndarr
     hadj_ptr = np.cumsum(hadj_ptr)
     pts = np.ascontiguousarray(planes.sample_points, dtype=np.float64)
     sptr = planes.sample_ptr
-    row_first = row_of.astype(np.int32)
-    adj_ext = K.pair_extents(row_first, adj_ids, normals, planes.offsets, sptr, pts)
-    pair_ext = K.pair_extents(np.ascontiguousarray(first[order]), np.ascontiguousarray(second[order]), normals,
-                              planes.offsets, sptr, pts)
+    ext = K.pair_extents(first, second, normals, planes.offsets, sptr, pts)  # in build_pairs order
+    adj_ext = np.ascontiguousarray(ext[row_order])
+    pair_ext = np.ascontiguousarray(ext[order])
     keys, ptr, ids = _spatial_hash(planes, params.extent_cell_m)
     return MapIndex(
         normals=normals,

@@ -49,7 +49,7 @@ def frequency_weights(
 
     ``R`` (H, 3, 3), ``t`` (H, 3), ``match`` (H, S) map plane per submap plane (-1 none), ``overlap`` (H, S),
     ``quality`` (H,) the order in which hypotheses lead the grouping into modes (best first).
-    Returns ``(w (H,), group (H,) int32)``.
+    Returns ``(w (H,), group (H,) int32, leaders (G,) int32)``: the leader of a mode is its best hypothesis.
     """
     H = R.shape[0]
     order = np.argsort(-quality, kind="stable").astype(np.int64)
@@ -63,7 +63,7 @@ def frequency_weights(
     freq = per_group.sum(axis=0)  # modes in which each submap plane is matched
     inv = np.where(freq > 0, 1.0 / np.maximum(freq, 1), 0.0)
     w = np.sum(np.where(matched, overlap, 0.0) * inv[None, :], axis=1)
-    return w, group
+    return w, group, leaders
 
 
 def pose_density(R: np.ndarray, t: np.ndarray, weights: np.ndarray, params: MatchingParams) -> np.ndarray:
@@ -103,12 +103,14 @@ def decide(
     if H == 0:
         return Decision(False, "no hypothesis passed verification", -1, 0.0, 0.0, 0)
     quality = n_matched.astype(np.float64) + explained
-    w, group = frequency_weights(R, t, match, overlap, quality, params)
-    n_modes = int(group.max()) + 1
-    # Triplets of the same mode are not independent evidence: each mode counts once, however many triplets gave it
-    # (otherwise a pose reachable through more map triplets, e.g. via a floor shared with the next room, would win).
-    size = np.bincount(group, minlength=n_modes)[group]
-    density = pose_density(R, t, w / size, params)
+    w, group, leaders = frequency_weights(R, t, match, overlap, quality, params)
+    n_modes = len(leaders)
+    # Triplets of the same mode are not independent evidence: each mode counts once (its mean weight), however many
+    # triplets gave it (otherwise a pose reachable through more map triplets, e.g. via a floor shared with the next
+    # room, would win). The density (Eq. 14) is evaluated at the modes' leaders: O(G^2) for G modes, not O(H^2).
+    size = np.bincount(group, minlength=n_modes)
+    mode_w = np.bincount(group, weights=w, minlength=n_modes) / np.maximum(size, 1)
+    density = pose_density(R[leaders], t[leaders], mode_w, params)
     need = params.min_matched_planes if min_matched is None else min_matched
     eligible = (n_matched >= need) & (explained >= params.min_explained_fraction)
     if not eligible.any():
@@ -119,11 +121,14 @@ def decide(
             f"{need} and {params.min_explained_fraction})",
             -1, 0.0, 0.0, n_modes,
         )
-    # Best: the eligible pose of highest density; ties go to the better verified hypothesis.
-    order = np.lexsort((-quality, -density))
-    best = int(order[eligible[order]][0])
-    score = float(density[best])
-    other = _distinct_from(R, t, best, params)
+    mode_ok = np.bincount(group, weights=eligible.astype(float), minlength=n_modes) > 0
+    # Best: the eligible mode of highest density; its best eligible hypothesis carries the pose.
+    g_best = int(np.flatnonzero(mode_ok)[np.argmax(density[mode_ok])])
+    members = np.flatnonzero((group == g_best) & eligible)
+    best = int(members[np.argmax(quality[members])])
+    score = float(density[g_best])
+    other = _distinct_from(R[leaders], t[leaders], int(np.flatnonzero(leaders == leaders[g_best])[0]), params)
+    other &= np.arange(n_modes) != g_best
     runner = float(density[other].max()) if other.any() else 0.0
     if score < params.min_score or score <= 0.0:
         return Decision(False, f"score {score:.3f} below {params.min_score}", best, score, runner, n_modes)
