@@ -27,8 +27,8 @@ from reloc.matching import MatchingParams, Relocalizer, ablation_params
 from reloc.planeset import PlaneSet
 from reloc.transforms import pose_error
 
-__all__ = ["SCENES", "EvalSpec", "Query", "SceneResult", "make_plane_source", "build_scene_map", "make_queries",
-           "evaluate_queries", "run_suite", "run_ablation"]
+__all__ = ["SCENES", "EvalSpec", "Query", "SceneResult", "Prepared", "make_plane_source", "build_scene_map",
+           "make_queries", "evaluate_queries", "prepare_suite", "run_suite", "run_ablation", "quick_spec"]
 
 SCENES = ("living_room", "office", "apartment", "corridor", "meeting_rooms", "symmetric_room")
 
@@ -192,10 +192,36 @@ def _negatives(queries_by_scene: dict[str, list[Query]], scene_name: str, n: int
     return [pool[i] for i in idx]
 
 
-def _prepare(spec: EvalSpec, mapping: MappingParams, extraction, progress) -> tuple[dict, dict, dict]:
-    """Maps and queries of every scene: ``(maps, map_seconds, queries_by_scene)``."""
+@dataclass
+class Prepared:
+    """Maps and queries of every scene of a suite, ready to be evaluated with any matching parameters."""
+
+    spec: EvalSpec
+    maps: dict
+    map_seconds: dict
+    queries: dict
+
+    def evaluate(self, matching: MatchingParams | None = None, progress: Callable | None = None,
+                 label: str = "") -> list[SceneResult]:
+        """Relocalize every scene's positives and negatives with ``matching``."""
+        matching = matching or MatchingParams()
+        results = []
+        for name in self.spec.scenes:
+            reloc = Relocalizer(self.maps[name], matching)
+            qs = self.queries[name] + _negatives(self.queries, name, self.spec.negatives_per_scene)
+            desc = f"{label} {name}".strip() if label else f"{name}: relocalize"
+            step = None if progress is None else (lambda n, _d=desc: progress(n, _d))
+            results.append(SceneResult(name, len(self.maps[name]), self.map_seconds[name],
+                                       evaluate_queries(reloc, qs, name, step)))
+        return results
+
+
+def prepare_suite(spec: EvalSpec, mapping: MappingParams | None = None, *, extraction=None,
+                  progress: Callable | None = None) -> Prepared:
+    """Build every scene's map and queries (the slow part: rendering, extraction, fusion)."""
     from sim.scenes import make_scene
 
+    mapping = mapping or MappingParams()
     maps, seconds, queries = {}, {}, {}
     for name in spec.scenes:
         scene = make_scene(name)
@@ -210,7 +236,7 @@ def _prepare(spec: EvalSpec, mapping: MappingParams, extraction, progress) -> tu
         queries[name] = make_queries(scene, spec, source, mapping)
         if progress is not None:
             progress(1, None)
-    return maps, seconds, queries
+    return Prepared(spec, maps, seconds, queries)
 
 
 def run_suite(spec: EvalSpec, matching: MatchingParams | None = None, mapping: MappingParams | None = None, *,
@@ -219,17 +245,7 @@ def run_suite(spec: EvalSpec, matching: MatchingParams | None = None, mapping: M
 
     ``progress(n, description)`` is called as work is done (2 steps per scene to prepare, then one per query).
     """
-    matching = matching or MatchingParams()
-    mapping = mapping or MappingParams()
-    maps, seconds, queries = _prepare(spec, mapping, extraction, progress)
-    results = []
-    for name in spec.scenes:
-        reloc = Relocalizer(maps[name], matching)
-        qs = queries[name] + _negatives(queries, name, spec.negatives_per_scene)
-        step = None if progress is None else (lambda n, _name=name: progress(n, f"{_name}: relocalize"))
-        res = SceneResult(name, len(maps[name]), seconds[name], evaluate_queries(reloc, qs, name, step))
-        results.append(res)
-    return results
+    return prepare_suite(spec, mapping, extraction=extraction, progress=progress).evaluate(matching, progress)
 
 
 def run_ablation(spec: EvalSpec, variants: tuple[str, ...], matching: MatchingParams | None = None,
@@ -239,8 +255,7 @@ def run_ablation(spec: EvalSpec, variants: tuple[str, ...], matching: MatchingPa
     switch extraction features off, so with the extraction source their maps and queries are rebuilt (with the
     oracle source they equal Ours)."""
     matching = matching or MatchingParams()
-    mapping = mapping or MappingParams()
-    prepared = {}
+    prepared: dict[str, Prepared] = {}
     out = {}
     for variant in variants:
         ext_key = variant if (spec.plane_source == "extraction" and variant in ("VR-NE", "VR-NM")) else "base"
@@ -250,16 +265,8 @@ def run_ablation(spec: EvalSpec, variants: tuple[str, ...], matching: MatchingPa
                 from reloc.mapping.sources import extraction_ablation
 
                 ext = extraction_ablation(extraction, variant)
-            prepared[ext_key] = _prepare(spec, mapping, ext, progress)
-        maps, seconds, queries = prepared[ext_key]
-        params = ablation_params(matching, variant)
-        results = []
-        for name in spec.scenes:
-            reloc = Relocalizer(maps[name], params)
-            qs = queries[name] + _negatives(queries, name, spec.negatives_per_scene)
-            step = None if progress is None else (lambda n, _v=variant, _n=name: progress(n, f"{_v} {_n}"))
-            results.append(SceneResult(name, len(maps[name]), seconds[name], evaluate_queries(reloc, qs, name, step)))
-        out[variant] = results
+            prepared[ext_key] = prepare_suite(spec, mapping, extraction=ext, progress=progress)
+        out[variant] = prepared[ext_key].evaluate(ablation_params(matching, variant), progress, label=variant)
     return out
 
 
