@@ -260,11 +260,11 @@ class EvaluationConfig(_Section):
     )
     refine_max_offset_m: float = Field(0.04, gt=0, description="...or whose centroid is farther than this off the plane.")
     final_max_angle_deg: float = Field(
-        3.0, gt=0, description="The refined pose is verified again with matches within this angle..."
+        5.0, gt=0,
+        description="The refined pose is verified again with matches within this angle (tighter than "
+        "match_max_angle_deg rejects look-alikes, but also true poses from noisy sensors)...",
     )
-    final_max_offset_m: float = Field(
-        0.05, gt=0, description="...and this offset (a true pose is precise; a look-alike only matches loosely)."
-    )
+    final_max_offset_m: float = Field(0.08, gt=0, description="...and this offset.")
     min_competitor_fraction: float = Field(
         0.6, ge=0, le=1,
         description="Poses explaining at least this fraction compete in the decision (ambiguity test) even though only "
@@ -295,6 +295,25 @@ class EvaluationConfig(_Section):
     kde_sigma_translation_m: float = Field(0.1, gt=0, description="Eq. 14 information matrix: translation scale.")
     kde_sigma_rotation_deg: float = Field(3.0, gt=0, description="Eq. 14 information matrix: rotation scale.")
     min_score: float = Field(0.0, ge=0, description="The best mode's density must be above this to be accepted.")
+    probe_twins: bool = Field(
+        True,
+        description="Before accepting, search the winner's triplets again with only angle, handedness and ground "
+        "tests, so that twins the map covers less completely still compete (and make the query ambiguous).",
+    )
+    optimistic_rivals: bool = Field(
+        True,
+        description="In the ambiguity test a rival pose's planes that land where the map knows nothing count as if "
+        "they matched: an incomplete map must not make a twin look worse than the pose it covers well.",
+    )
+    rival_unknown_weight: float = Field(
+        0.5, ge=0, le=1,
+        description="With optimistic_rivals, how much of a match an unknown plane of a rival counts for (needs a "
+        "map with free space; 1 = as a match, 0 = not at all).",
+    )
+    evidence_area_m2: float = Field(
+        1.0, gt=0, description="A matched plane's weight (Eq. 12-13) grows with its area up to this (small facets are "
+        "weak evidence, and often clutter).",
+    )
     min_ambiguity_ratio: float = Field(
         1.5, ge=1, description="Best mode must beat the runner-up at a different pose by this factor."
     )

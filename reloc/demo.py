@@ -30,7 +30,7 @@ class DemoSpec:
     map_trajectories: tuple[tuple[str, int], ...] = (("robot", 1500), ("handheld", 1500))
     queries_per_kind: int = 5
     negatives: int = 10
-    window_frames: int = 20
+    window_frames: int = 40
     window_stride: int = 3
     seed: int = 1
 

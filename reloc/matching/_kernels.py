@@ -617,8 +617,8 @@ def verify_transforms(R, t, cand, plane_order, sub_normals, sub_offsets, sub_cen
     samples fall in free space for more than ``max_free_fraction`` contradicts the map: the hypothesis fails (the
     map saw empty space where the pose puts a surface). ``out_free`` (H,) counts such planes. ``out_state`` (H, S)
     int8 says why each plane is unmatched: 0 matched (or not judged), 1 unknown (the map has nothing there: no
-    surface facing the same way, no free space), 2 conflict (other map surfaces facing the same way there), 3 in
-    known free space, 4 too small to count;
+    surface facing the same way off its plane, no free space), 2 conflict (map surfaces facing the same way, but
+    off its plane, are there), 3 in known free space, 4 too small to count;
     ``out_unknown`` (H,) is the weight of the unknown planes as a fraction of the total (what the pose might still
     explain with a more complete map).
 
@@ -754,6 +754,45 @@ def verify_transforms(R, t, cand, plane_order, sub_normals, sub_offsets, sub_cen
                     best = q
                     best_p = rp
                     best_o = ro
+            if best < 0 and use_overlap and n_c > 1:
+                # A map surface stored as several coplanar fragments (seen in pieces, never joined): the plane's
+                # extent is their union. Judge the strongest candidate against the union of the candidates
+                # coplanar with it.
+                top = 0
+                for q in range(1, n_c):
+                    if cand_over[q] + cand_proj[q] > cand_over[top] + cand_proj[top]:
+                        top = q
+                it = cand_id[top]
+                u_over = 0
+                u_proj = 0
+                for s in range(s0, s1):
+                    p = vs_points[s]
+                    px = R[h, 0, 0] * p[0] + R[h, 0, 1] * p[1] + R[h, 0, 2] * p[2] + t[h, 0]
+                    py = R[h, 1, 0] * p[0] + R[h, 1, 1] * p[1] + R[h, 1, 2] * p[2] + t[h, 1]
+                    pz = R[h, 2, 0] * p[0] + R[h, 2, 1] * p[1] + R[h, 2, 2] * p[2] + t[h, 2]
+                    key = _cell_of(px, py, pz, cell)
+                    pos = _lower_bound(hash_keys, 0, n_keys, key)
+                    if pos >= n_keys or hash_keys[pos] != key:
+                        continue
+                    hit = False
+                    for e in range(hash_ptr[pos], hash_ptr[pos + 1]):
+                        i2 = hash_ids[e]
+                        if (map_normals[i2, 0] * map_normals[it, 0] + map_normals[i2, 1] * map_normals[it, 1]
+                                + map_normals[i2, 2] * map_normals[it, 2] >= cos_match
+                                and abs(map_offsets[i2] - map_offsets[it]) <= max_offset):
+                            hit = True
+                            break
+                    if hit:
+                        u_over += 1
+                        if abs(map_normals[it, 0] * px + map_normals[it, 1] * py + map_normals[it, 2] * pz
+                               + map_offsets[it]) <= inlier_m:
+                            u_proj += 1
+                ro = u_over * inv_m
+                rp = u_proj * inv_m
+                if ro >= min_overlap and (not use_projection or rp >= min_projection):
+                    best = top
+                    best_p = rp
+                    best_o = ro
             if best >= 0:
                 i = cand_id[best]
                 out_match[h, j] = i
@@ -776,8 +815,9 @@ def verify_transforms(R, t, cand, plane_order, sub_normals, sub_offsets, sub_cen
                 break
             elif sub_areas[j] >= min_counted_area and m_j > 0:
                 # An unmatched plane that counts: in known free space it contradicts the map; near map surfaces
-                # facing the same way (within 30 deg) it conflicts with them; elsewhere (nothing there, or only
-                # surfaces across it, as at a junction) the map does not know.
+                # facing the same way (within 30 deg) but off its plane it conflicts with them; elsewhere (nothing
+                # there, surfaces across it as at a junction, or its own plane mapped only in part) the map does
+                # not know.
                 inside = 0
                 near = 0
                 for s in range(s0, s1):
@@ -795,7 +835,9 @@ def verify_transforms(R, t, cand, plane_order, sub_normals, sub_offsets, sub_cen
                     if pos < n_keys and hash_keys[pos] == key:
                         for e in range(hash_ptr[pos], hash_ptr[pos + 1]):
                             i = hash_ids[e]
-                            if nx * map_normals[i, 0] + ny * map_normals[i, 1] + nz * map_normals[i, 2] >= 0.866:
+                            if (nx * map_normals[i, 0] + ny * map_normals[i, 1] + nz * map_normals[i, 2] >= 0.866
+                                    and abs(map_normals[i, 0] * px + map_normals[i, 1] * py + map_normals[i, 2] * pz
+                                            + map_offsets[i]) > max_offset):
                                 near += 1
                                 break
                 if inside > max_free_fraction * m_j:

@@ -55,13 +55,17 @@ class MatchingParams:
     kde_sigma_rotation_rad: float = math.radians(3.0)
     min_score: float = 0.0
     min_ambiguity_ratio: float = 1.5
+    probe_twins: bool = True
+    optimistic_rivals: bool = True
+    rival_unknown_weight: float = 0.5
+    evidence_area_m2: float = 1.0
     distinct_translation_m: float = 0.25
     distinct_rotation_rad: float = math.radians(5.0)
     refine_iterations: int = 2
     refine_max_angle_rad: float = math.radians(2.0)
     refine_max_offset_m: float = 0.04
-    final_max_angle_rad: float = math.radians(3.0)
-    final_max_offset_m: float = 0.05
+    final_max_angle_rad: float = math.radians(5.0)
+    final_max_offset_m: float = 0.08
 
     def __post_init__(self) -> None:
         problems = []
@@ -141,6 +145,10 @@ class MatchingParams:
             kde_sigma_rotation_rad=r(e.kde_sigma_rotation_deg),
             min_score=e.min_score,
             min_ambiguity_ratio=e.min_ambiguity_ratio,
+            probe_twins=e.probe_twins,
+            optimistic_rivals=e.optimistic_rivals,
+            rival_unknown_weight=e.rival_unknown_weight,
+            evidence_area_m2=e.evidence_area_m2,
             distinct_translation_m=e.distinct_translation_m,
             distinct_rotation_rad=r(e.distinct_rotation_deg),
             refine_iterations=e.refine_iterations,

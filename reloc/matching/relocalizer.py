@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -116,6 +116,11 @@ class Verification:
     free: np.ndarray
     passed: np.ndarray
     evaluated: int
+
+
+def replace_passed(v: Verification, passed: np.ndarray) -> Verification:
+    """``v`` with another ``passed`` mask."""
+    return replace(v, passed=passed)
 
 
 class _Hypotheses:
@@ -274,6 +279,42 @@ class Relocalizer:
             js = js[keep]
         return T
 
+    def _probe_twins(self, used, vs_ptr, vs_pts, facing, distances, sub_ext, hyps, best, counts) -> None:
+        """Add to ``hyps`` the verified competitors found by the winner's submap triplets with relaxed filters."""
+        p = self.params
+        relaxed = replace(p, extent_tolerance_m=1e3, min_area_ratio=0.0, gap_tolerance_m=1e3)
+        j = hyps.cand[best, :3]
+        tri = np.ascontiguousarray(j[None, :], dtype=np.int32)
+        face0 = np.ascontiguousarray(facing[tri[:, 0]], dtype=np.int8)
+        use_ground = bool(p.structural_constraints and face0[0] != 0)
+        cand, generated, _ = candidate_triplets(
+            self.index, used.normals, used.areas, tri, face0, gap_bounds(tri, distances, relaxed), sub_ext, use_ground,
+            relaxed, brute_force=self.brute_force,
+        )
+        counts["probe_candidates"] = len(cand)
+        if not len(cand):
+            return
+        H = len(cand)
+        R = np.empty((H, 3, 3))
+        t = np.empty((H, 3))
+        status = np.empty(H, np.int8)
+        K.triplet_transforms(cand, used.normals, used.offsets, self.index.normals, self.index.offsets,
+                             p.degenerate_min_angle_rad, p.max_condition_number, 2.0 * p.pair_angle_tolerance_rad, R, t,
+                             status)
+        ok = status == K.TRANSFORM_OK
+        if not ok.any():
+            return
+        R, t, cand = R[ok], t[ok], cand[ok]
+        v = self.verify(used, vs_ptr, vs_pts, R, t, cand)
+        # Only poses not already among the hypotheses add anything.
+        new = v.passed.copy()
+        for h in np.flatnonzero(new):
+            d = np.linalg.norm(hyps.t - t[h], axis=1)
+            if np.any(d < 1e-6):
+                new[h] = False
+        counts["probe_passed"] = int(new.sum())
+        hyps.add(R, t, cand, replace_passed(v, new))
+
     # -- one query -------------------------------------------------------------------------------------------------
 
     def locate(self, submap: PlaneSet) -> RelocResult:
@@ -349,10 +390,23 @@ class Relocalizer:
                 timings["verify"] += (t3 - t2) * 1e3
                 if passed_any := (len(hyps) > 0):
                     decision = decide(hyps.R, hyps.t, hyps.match, hyps.over, hyps.n_matched, hyps.explained, p,
-                                      min_matched=min_matched, state=hyps.state)
+                                      min_matched=min_matched, state=hyps.state, areas=used.areas,
+                                      optimistic=len(self.index.free_keys) > 0)
                 timings["decide"] += (time.perf_counter() - t3) * 1e3
                 if passed_any and decision.accepted:
                     break
+        if decision.accepted and p.probe_twins:
+            # Before accepting, look for twins the selection filters hid: the same submap triplets matched with
+            # only the angle, handedness, ground and area-free tests (a twin room the map covers less completely
+            # fails the extent and area filters, but is still a pose that may be the truth).
+            t0 = time.perf_counter()
+            before = len(hyps)
+            self._probe_twins(used, vs_ptr, vs_pts, facing, distances, sub_ext, hyps, decision.best, counts)
+            if len(hyps) > before:
+                decision = decide(hyps.R, hyps.t, hyps.match, hyps.over, hyps.n_matched, hyps.explained, p,
+                                  min_matched=min_matched, state=hyps.state, areas=used.areas,
+                                  optimistic=len(self.index.free_keys) > 0)
+            timings["decide"] += (time.perf_counter() - t0) * 1e3
         if not decision.accepted:
             return finish(_rejected(decision.reason, counts, timings))
         # Refine the winner over all its matched planes, then verify and refine again.

@@ -43,13 +43,20 @@ def _distinct_from(R: np.ndarray, t: np.ndarray, a: int, params: MatchingParams)
 
 
 def frequency_weights(
-    R: np.ndarray, t: np.ndarray, match: np.ndarray, overlap: np.ndarray, quality: np.ndarray, params: MatchingParams
-) -> tuple[np.ndarray, np.ndarray]:
+    R: np.ndarray, t: np.ndarray, match: np.ndarray, overlap: np.ndarray, quality: np.ndarray, params: MatchingParams,
+    state: np.ndarray | None = None, areas: np.ndarray | None = None,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Eq. 12-13: the weight ``w_a`` of each verified hypothesis, and the mode (group of nearby poses) of each.
 
     ``R`` (H, 3, 3), ``t`` (H, 3), ``match`` (H, S) map plane per submap plane (-1 none), ``overlap`` (H, S),
-    ``quality`` (H,) the order in which hypotheses lead the grouping into modes (best first).
-    Returns ``(w (H,), group (H,) int32, leaders (G,) int32)``: the leader of a mode is its best hypothesis.
+    ``quality`` (H,) the order in which hypotheses lead the grouping into modes (best first). With ``state`` (H, S)
+    (see :class:`reloc.matching.relocalizer.Verification`), a plane that conflicts with the map under a hypothesis
+    (state 2: a map surface facing the same way is there, but the plane does not line up with it) counts against
+    it with the weight it would have had if matched: evidence against a pose, not merely missing evidence. With
+    ``areas`` (S,), a plane's weight also grows with its area up to ``evidence_area_m2`` (a 0.2 m^2 facet is
+    weaker evidence than a wall, and is more often clutter).
+    Returns ``(w (H,), group (H,) int32, leaders (G,) int32, plane_w (S,))``: the leader of a mode is its best
+    hypothesis; ``plane_w[j]`` is the weight a match of submap plane j carries (``1 / f_j``, 1 if never matched).
     """
     H = R.shape[0]
     order = np.argsort(-quality, kind="stable").astype(np.int64)
@@ -62,8 +69,13 @@ def frequency_weights(
     np.logical_or.at(per_group, group, matched)
     freq = per_group.sum(axis=0)  # modes in which each submap plane is matched
     inv = np.where(freq > 0, 1.0 / np.maximum(freq, 1), 0.0)
+    reliability = np.ones(match.shape[1]) if areas is None else np.minimum(1.0, areas / params.evidence_area_m2)
+    inv = inv * reliability
     w = np.sum(np.where(matched, overlap, 0.0) * inv[None, :], axis=1)
-    return w, group, leaders
+    plane_w = np.where(freq > 0, inv, reliability)
+    if state is not None:
+        w = np.maximum(w - np.sum(np.where(state == 2, plane_w[None, :], 0.0), axis=1), 0.0)
+    return w, group, leaders, plane_w
 
 
 def pose_density(R: np.ndarray, t: np.ndarray, weights: np.ndarray, params: MatchingParams) -> np.ndarray:
@@ -89,21 +101,24 @@ def decide(
     *,
     min_matched: int | None = None,
     state: np.ndarray | None = None,
+    areas: np.ndarray | None = None,
+    optimistic: bool = True,
 ) -> Decision:
     """Pick the best pose among verified hypotheses, or reject with a reason.
 
     Every hypothesis competes (it may be the truth); only those matching ``min_matched`` planes (default
     ``params.min_matched_planes``) and explaining ``params.min_explained_fraction`` may win.
 
-    ``state`` (H, S) (see :class:`reloc.matching.relocalizer.Verification`) is accepted for diagnostics: which
-    hypotheses compete was settled by verification (a pose that may be the truth, given what the map does not
-    know, competes), while only a pose that itself explains ``min_explained_fraction`` can win.
+    ``state`` (H, S) (see :class:`reloc.matching.relocalizer.Verification`): planes conflicting with the map count
+    against a hypothesis (:func:`frequency_weights`). Which hypotheses compete was settled by verification (a pose
+    that may be the truth, given what the map does not know, competes); only a pose that itself explains
+    ``min_explained_fraction`` can win.
     """
     H = R.shape[0]
     if H == 0:
         return Decision(False, "no hypothesis passed verification", -1, 0.0, 0.0, 0)
     quality = n_matched.astype(np.float64) + explained
-    w, group, leaders = frequency_weights(R, t, match, overlap, quality, params)
+    w, group, leaders, plane_w = frequency_weights(R, t, match, overlap, quality, params, state, areas)
     n_modes = len(leaders)
     # Triplets of the same mode are not independent evidence: each mode counts once (its mean weight), however many
     # triplets gave it (otherwise a pose reachable through more map triplets, e.g. via a floor shared with the next
@@ -111,6 +126,14 @@ def decide(
     size = np.bincount(group, minlength=n_modes)
     mode_w = np.bincount(group, weights=w, minlength=n_modes) / np.maximum(size, 1)
     density = pose_density(R[leaders], t[leaders], mode_w, params)
+    rival = density
+    if optimistic and params.optimistic_rivals and state is not None:
+        # A rival is judged by what it might explain with a complete map: its planes that land where the map knows
+        # nothing count as if matched (with the frequency weight such a match would carry).
+        w_opt = w + params.rival_unknown_weight * np.sum(np.where(state == 1, plane_w[None, :], 0.0), axis=1)
+        mode_opt = np.bincount(group, weights=w_opt, minlength=n_modes) / np.maximum(size, 1)
+        z = float(mode_w.sum())
+        rival = pose_density(R[leaders], t[leaders], mode_opt, params) * (float(mode_opt.sum()) / max(z, 1e-300))
     need = params.min_matched_planes if min_matched is None else min_matched
     eligible = (n_matched >= need) & (explained >= params.min_explained_fraction)
     if not eligible.any():
@@ -129,7 +152,7 @@ def decide(
     score = float(density[g_best])
     other = _distinct_from(R[leaders], t[leaders], int(np.flatnonzero(leaders == leaders[g_best])[0]), params)
     other &= np.arange(n_modes) != g_best
-    runner = float(density[other].max()) if other.any() else 0.0
+    runner = float(rival[other].max()) if other.any() else 0.0
     if score < params.min_score or score <= 0.0:
         return Decision(False, f"score {score:.3f} below {params.min_score}", best, score, runner, n_modes)
     if runner > 0 and score < params.min_ambiguity_ratio * runner:
