@@ -51,7 +51,14 @@ def run_demo(spec: DemoSpec | None = None, cfg=None, *, progress: Callable[[str,
     from reloc._numba import warm_up
     from reloc.config import Config
     from reloc.evaluation.metrics import summarize
-    from reloc.evaluation.suite import EvalSpec, build_scene_map, evaluate_queries, make_plane_source, make_queries
+    from reloc.evaluation.suite import (
+        EvalSpec,
+        build_scene_map,
+        evaluate_queries,
+        extraction_for_sensor,
+        make_plane_source,
+        make_queries,
+    )
     from reloc.mapping import MappingParams
     from reloc.matching import MatchingParams, Relocalizer
 
@@ -79,6 +86,8 @@ def run_demo(spec: DemoSpec | None = None, cfg=None, *, progress: Callable[[str,
                     query_spacing_frames=max(60, spec.window_stride * spec.window_frames + 1),
                     plane_source=spec.plane_source)
     scene = make_scene(spec.scene)
+    if extraction is not None:
+        extraction = extraction_for_sensor(base, extraction)
     source = make_plane_source(spec.plane_source, scene, extraction=extraction)
 
     t = time.perf_counter()

@@ -27,8 +27,9 @@ from reloc.matching import MatchingParams, Relocalizer, ablation_params
 from reloc.planeset import PlaneSet
 from reloc.transforms import pose_error
 
-__all__ = ["SCENES", "EvalSpec", "Query", "SceneResult", "Prepared", "make_plane_source", "build_scene_map",
-           "make_queries", "evaluate_queries", "prepare_suite", "run_suite", "run_ablation", "quick_spec"]
+__all__ = ["SCENES", "EvalSpec", "Query", "SceneResult", "Prepared", "make_plane_source", "extraction_for_sensor",
+           "build_scene_map", "make_queries", "evaluate_queries", "prepare_suite", "run_suite", "run_ablation",
+           "quick_spec"]
 
 SCENES = ("living_room", "office", "apartment", "corridor", "meeting_rooms", "symmetric_room")
 
@@ -83,6 +84,29 @@ class SceneResult:
 
     def summary(self) -> Summary:
         return summarize(self.scene, self.outcomes)
+
+
+def extraction_for_sensor(spec: EvalSpec, extraction=None):
+    """``extraction`` (ExtractionParams, None = defaults) with its noise law set to the simulated sensor's: kinect
+    ``1.425e-3 z^2``; stereo ``sigma_disparity / (f b) z^2`` at the spec's resolution; ToF ``~ b z`` (its constant
+    term folded in at 2 m). Extraction's planarity tests and weights depend on it, so a mismatch ruins the planes."""
+    from dataclasses import replace as _replace
+
+    from sim.cameras import resolve_intrinsics
+    from sim.noise import make_noise
+
+    from reloc.extraction import ExtractionParams
+
+    params = extraction if extraction is not None else ExtractionParams()
+    noise = make_noise(spec.noise)
+    if noise.name == "kinect":
+        return _replace(params, noise_model="kinect", noise_coeff=noise.kinect_coeff)
+    if noise.name == "stereo":
+        fx = abs(resolve_intrinsics(spec.camera, spec.width, spec.height).fx)
+        return _replace(params, noise_model="stereo", noise_coeff=noise.sigma_disp_px / (fx * noise.baseline_m))
+    if noise.name == "tof":
+        return _replace(params, noise_model="tof", noise_coeff=noise.tof_b + noise.tof_a_m / 2.0)
+    return params
 
 
 def make_plane_source(kind: str, scene, *, extraction=None) -> Callable:
@@ -225,7 +249,8 @@ def prepare_suite(spec: EvalSpec, mapping: MappingParams | None = None, *, extra
     maps, seconds, queries = {}, {}, {}
     for name in spec.scenes:
         scene = make_scene(name)
-        source = make_plane_source(spec.plane_source, scene, extraction=extraction)
+        ext = extraction_for_sensor(spec, extraction) if spec.plane_source == "extraction" else None
+        source = make_plane_source(spec.plane_source, scene, extraction=ext)
         if progress is not None:
             progress(0, f"{name}: map")
         t0 = time.perf_counter()
