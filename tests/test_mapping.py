@@ -169,3 +169,23 @@ def test_plane_map_validates_its_inputs(living_map):
         PlaneMap(pm.planes, pm.observations[:-1])
     with pytest.raises(ValueError, match="frame 'map'"):
         PlaneMap(pm.planes.transformed(np.eye(4), "cam"), pm.observations)
+
+
+def test_free_space_is_carved_in_front_of_surfaces_only():
+    from reloc.camera import DepthFrame, Intrinsics
+    from reloc.mapping.fusion import voxel_keys
+
+    intr = Intrinsics(fx=50.0, fy=50.0, cx=31.5, cy=23.5, width=64, height=48)
+    depth = np.full((48, 64), 3.0, np.float32)  # a wall 3 m ahead of a camera at the origin looking along +z
+    builder = MapBuilder(MappingParams(free_space_voxel_m=0.2, free_space_margin_m=0.3, free_space_pixel_stride=4))
+    frame = DepthFrame(depth, intr, stamp_ns=0)
+    from reloc.planeset import PlaneSet
+
+    builder.add(PlaneSet.empty(gravity=np.array([0.0, 1.0, 0.0])), np.eye(4), frame)  # only the carving matters
+    pm = builder.finish()
+    free = set(pm.free_keys.tolist())
+    assert len(free) > 50 and pm.free_voxel_m == 0.2
+    ahead = voxel_keys(np.array([[0.0, 0.0, 1.0], [0.0, 0.0, 2.0], [0.3, -0.2, 2.4]]), 0.2)
+    behind = voxel_keys(np.array([[0.0, 0.0, 3.0], [0.0, 0.0, 3.5], [0.0, 0.0, 5.0]]), 0.2)
+    assert all(k in free for k in ahead.tolist())
+    assert not any(k in free for k in behind.tolist())

@@ -261,3 +261,26 @@ def test_result_is_json_ready(living_relocalizer):
     back = json.loads(json.dumps(d))
     assert back["status"] == "relocalized" and len(back["T_map_cam"]) == 4
     assert back["matched_planes"] >= 5 and back["counts"]["rounds"] >= 1
+
+
+def test_kernel_density_matches_the_log_map_reference():
+    from reloc.transforms import exp_se3, invert, log_se3
+
+    rng = np.random.default_rng(9)
+    base = random_pose(rng)
+    poses = [base @ exp_se3(np.r_[rng.normal(0, 0.05, 3), rng.normal(0, 0.03, 3)]) for _ in range(12)]
+    poses.append(base @ exp_se3(np.r_[0.0, 0.0, 0.0, math.pi - 1e-3, 0.0, 0.0]))  # near pi
+    R = np.array([T[:3, :3] for T in poses])
+    t = np.array([T[:3, 3] for T in poses])
+    w = rng.uniform(0.5, 2.0, len(poses))
+    info = np.array([100.0] * 3 + [300.0] * 3)
+    out = np.empty(len(poses))
+    K.kde_density(R, t, w, info, out)
+    ref = np.array([sum(wb * math.exp(-min(50.0, float(xi @ (info * xi)))) if float(xi @ (info * xi)) < 50 else 0.0
+                        for wb, xi in ((w[b], log_se3(invert(Ta) @ Tb)) for b, Tb in enumerate(poses)))
+                    for Ta in poses])
+    np.testing.assert_allclose(out, ref, rtol=1e-9, atol=1e-12)
+    xi = np.empty(6)
+    for Ta, Tb in ((poses[0], poses[-1]), (poses[3], poses[5])):
+        K.relative_log(Ta[:3, :3], Ta[:3, 3], Tb[:3, :3], Tb[:3, 3], np.empty((3, 3)), np.empty(3), xi)
+        np.testing.assert_allclose(xi, log_se3(invert(Ta) @ Tb), atol=1e-6)
