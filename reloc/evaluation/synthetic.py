@@ -60,7 +60,7 @@ def box(center_xy, size_xyz, *, z0: float = 0.0, yaw_rad: float = 0.0, top: bool
 
 
 def room(width: float, depth: float, height: float, *, origin=(0.0, 0.0), ceiling: bool = True) -> list[Rect]:
-    """Floor, optional ceiling and four walls (normals inward) of a room spanning ``origin + [0, width] x [0, depth]``."""
+    """Floor, optional ceiling and four walls (normals inward) of the room ``origin + [0, width] x [0, depth]``."""
     ox, oy = origin
     cx, cy = ox + width / 2, oy + depth / 2
     rects = [Rect((cx, cy, 0.0), (0, 0, 1), (1, 0, 0), width / 2, depth / 2)]
