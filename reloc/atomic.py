@@ -1,18 +1,42 @@
 """Atomic file writes: a temporary file in the same directory, flushed and fsynced, then renamed over the target.
 
 A crash or a full disk never leaves a half-written file under the final name: readers see the old file or the new
-one, nothing in between.
+one, nothing in between. The file gets the permissions an ordinary ``open`` would give it (``0o666`` less the umask),
+or keeps those of the file it replaces, not the private ``0o600`` of a temporary file.
 """
 
 from __future__ import annotations
 
 import contextlib
 import os
+import stat
 import tempfile
 from pathlib import Path
 from typing import IO, Iterator
 
 __all__ = ["atomic_write", "atomic_write_bytes", "atomic_write_text"]
+
+
+def _umask() -> int:
+    """The process umask, read without changing it where the platform allows (os.umask is process-wide)."""
+    try:
+        with open("/proc/self/status", encoding="ascii") as fh:
+            for line in fh:
+                if line.startswith("Umask:"):
+                    return int(line.split()[1], 8)
+    except (OSError, ValueError):
+        pass
+    mask = os.umask(0o022)
+    os.umask(mask)
+    return mask
+
+
+def _final_mode(target: Path) -> int:
+    """Mode bits for ``target``: those of the file being replaced, else 0o666 less the umask."""
+    try:
+        return stat.S_IMODE(os.stat(target).st_mode)
+    except OSError:
+        return 0o666 & ~_umask()
 
 
 @contextlib.contextmanager
@@ -25,8 +49,11 @@ def atomic_write(path: str | os.PathLike, mode: str = "wb") -> Iterator[IO]:
         raise ValueError(f"mode: expected 'w' or 'wb', got {mode!r}")
     target = Path(path)
     target.parent.mkdir(parents=True, exist_ok=True)
+    mode_bits = _final_mode(target)
     fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".tmp", dir=target.parent)
     try:
+        with contextlib.suppress(OSError):  # mkstemp makes it 0o600; a file system without modes keeps its own
+            os.chmod(tmp, mode_bits)
         with os.fdopen(fd, mode, **({"encoding": "utf-8"} if mode == "w" else {})) as fh:
             yield fh
             fh.flush()
