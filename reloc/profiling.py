@@ -105,15 +105,31 @@ class Profiler:
     def add_timings_ms(
         self, timings_ms: dict[str, float], prefix: str = "", end_ns: int | None = None, thread: str | None = None
     ) -> None:
-        """Record a component's stage times (ms), e.g. ``ExtractionResult.timings_ms``, under ``prefix``."""
+        """Record a component's stage times (ms), e.g. ``ExtractionResult.timings_ms``, under ``prefix``.
+
+        A key ``"a.b"`` whose parent ``"a"`` is also given is a part of ``a`` (its time is included in a's): in the
+        trace it is placed inside a's span, after its earlier siblings, instead of after ``a``.
+        """
         if not self.enabled or not timings_ms:
             return
         end = time.perf_counter_ns() if end_ns is None else int(end_ns)
         durations = [(k, int(round(float(v) * 1e6))) for k, v in timings_ms.items()]
-        start = end - sum(d for _, d in durations)
+        parent = {k: k.rpartition(".")[0] for k, _ in durations}
+        nested = {k for k, p in parent.items() if p and p in timings_ms}
+        start = end - sum(d for k, d in durations if k not in nested)
+        starts: dict[str, int] = {}
         for key, dur in durations:
-            self.record(f"{prefix}{key}", start, dur, thread)
-            start += dur
+            if key not in nested:
+                starts[key] = start
+                start += dur
+        cursor = dict(starts)  # the next free start inside each stage's span, for its parts
+        for key, dur in durations:
+            if key in nested:
+                at = cursor[parent[key]]
+                cursor[parent[key]] = at + dur
+            else:
+                at = starts[key]
+            self.record(f"{prefix}{key}", at, dur, thread)
 
     def note_compile(self, seconds: float) -> None:
         """Numba compilation time, reported apart from stage times."""

@@ -87,3 +87,17 @@ def test_disabled_profiler_records_nothing_and_compile_time_is_apart():
         pass
     s = on.summary()
     assert s["compile_s"] == 2.5 and s["stages"]["x"]["max_ms"] < 2500
+
+
+def test_add_timings_places_parts_inside_their_parent():
+    """``"decide.density"`` with ``"decide"`` given is part of it: inside its span, not after it."""
+    prof = Profiler(trace_capacity=16)
+    prof.add_timings_ms({"decide.density": 0.5, "verify": 1.0, "decide": 2.0, "decide.weights": 0.25},
+                        prefix="reloc.", end_ns=10_000_000)
+    ev = {e["name"]: e for e in prof.chrome_trace()["traceEvents"] if e["ph"] == "X"}
+    assert ev["reloc.verify"]["ts"] + ev["reloc.verify"]["dur"] == pytest.approx(ev["reloc.decide"]["ts"])
+    end_us = ev["reloc.verify"]["ts"] + 3000.0  # top-level stages only: 1 + 2 ms, ending at end_ns
+    assert ev["reloc.decide"]["ts"] + ev["reloc.decide"]["dur"] == pytest.approx(end_us)
+    assert ev["reloc.decide.density"]["ts"] == pytest.approx(ev["reloc.decide"]["ts"])
+    assert ev["reloc.decide.weights"]["ts"] == pytest.approx(ev["reloc.decide"]["ts"] + 500.0)
+    assert ev["reloc.decide.weights"]["dur"] == pytest.approx(250.0)

@@ -41,6 +41,9 @@ __all__ = ["RelocResult", "Relocalizer", "Verification", "locate", "support_per_
 RELOCALIZED = "relocalized"
 REJECTED = "rejected"
 STAGES = ("prepare", "select", "transform", "verify", "decide", "refine")
+# Parts of "decide" (their time is included in it): frequency weights (Eq. 12-13), kernel density (Eq. 14), and the
+# twin probe before accepting (relaxed selection, transforms and verification).
+SUBSTAGES = ("decide.weights", "decide.density", "decide.probe")
 
 
 @dataclass(frozen=True)
@@ -55,7 +58,7 @@ class RelocResult:
     - ``explained_fraction``: matched submap area over the submap area used.
     - ``counts``: submap planes, planes used, rounds, submap triplets, map triplets looked at (``generated``),
       candidates after selection, degenerate transforms, hypotheses verified, verified hypotheses that passed.
-    - ``timings_ms``: per stage (:data:`STAGES`) and ``total``.
+    - ``timings_ms``: per stage (:data:`STAGES`), the parts of ``decide`` (:data:`SUBSTAGES`) and ``total``.
     """
 
     status: str
@@ -317,12 +320,22 @@ class Relocalizer:
 
     # -- one query -------------------------------------------------------------------------------------------------
 
+    def _decide(self, hyps, used: PlaneSet, min_matched: int, timings: dict) -> Decision:
+        """The decision over every hypothesis so far; its weights and density times go to ``timings``."""
+        part: dict = {}
+        decision = decide(hyps.R, hyps.t, hyps.match, hyps.over, hyps.n_matched, hyps.explained, self.params,
+                          min_matched=min_matched, state=hyps.state, areas=used.areas,
+                          optimistic=len(self.index.free_keys) > 0, timings_ms=part)
+        timings["decide.weights"] += part.get("weights", 0.0)
+        timings["decide.density"] += part.get("density", 0.0)
+        return decision
+
     def locate(self, submap: PlaneSet) -> RelocResult:
         """Relocalize ``submap`` (planes in the latest camera frame, with gravity) in the map."""
         if not isinstance(submap, PlaneSet):
             raise ValueError(f"submap: expected a PlaneSet, got {type(submap).__name__}")
         p = self.params
-        timings = {s: 0.0 for s in STAGES}
+        timings = {s: 0.0 for s in (*STAGES, *SUBSTAGES)}
         counts = {
             "submap_planes": len(submap), "planes_used": 0, "rounds": 0, "submap_triplets": 0, "generated": 0,
             "candidates": 0, "degenerate": 0, "verified": 0, "contradicted": 0, "passed": 0, "truncated": 0,
@@ -389,9 +402,7 @@ class Relocalizer:
                 t3 = time.perf_counter()
                 timings["verify"] += (t3 - t2) * 1e3
                 if passed_any := (len(hyps) > 0):
-                    decision = decide(hyps.R, hyps.t, hyps.match, hyps.over, hyps.n_matched, hyps.explained, p,
-                                      min_matched=min_matched, state=hyps.state, areas=used.areas,
-                                      optimistic=len(self.index.free_keys) > 0)
+                    decision = self._decide(hyps, used, min_matched, timings)
                 timings["decide"] += (time.perf_counter() - t3) * 1e3
                 if passed_any and decision.accepted:
                     break
@@ -402,10 +413,9 @@ class Relocalizer:
             t0 = time.perf_counter()
             before = len(hyps)
             self._probe_twins(used, vs_ptr, vs_pts, facing, distances, sub_ext, hyps, decision.best, counts)
+            timings["decide.probe"] += (time.perf_counter() - t0) * 1e3
             if len(hyps) > before:
-                decision = decide(hyps.R, hyps.t, hyps.match, hyps.over, hyps.n_matched, hyps.explained, p,
-                                  min_matched=min_matched, state=hyps.state, areas=used.areas,
-                                  optimistic=len(self.index.free_keys) > 0)
+                decision = self._decide(hyps, used, min_matched, timings)
             timings["decide"] += (time.perf_counter() - t0) * 1e3
         if not decision.accepted:
             return finish(_rejected(decision.reason, counts, timings))

@@ -14,6 +14,7 @@ thresholds). Otherwise the query is rejected as ambiguous: identical rooms and s
 from __future__ import annotations
 
 import math
+import time
 from dataclasses import dataclass
 
 import numpy as np
@@ -103,6 +104,7 @@ def decide(
     state: np.ndarray | None = None,
     areas: np.ndarray | None = None,
     optimistic: bool = True,
+    timings_ms: dict | None = None,
 ) -> Decision:
     """Pick the best pose among verified hypotheses, or reject with a reason.
 
@@ -113,12 +115,17 @@ def decide(
     against a hypothesis (:func:`frequency_weights`). Which hypotheses compete was settled by verification (a pose
     that may be the truth, given what the map does not know, competes); only a pose that itself explains
     ``min_explained_fraction`` can win.
+
+    ``timings_ms``: when given, the milliseconds of the frequency weights (``"weights"``, Eq. 12-13) and of the kernel
+    density (``"density"``, Eq. 14) are added to it.
     """
     H = R.shape[0]
     if H == 0:
         return Decision(False, "no hypothesis passed verification", -1, 0.0, 0.0, 0)
     quality = n_matched.astype(np.float64) + explained
+    t0 = time.perf_counter()
     w, group, leaders, plane_w = frequency_weights(R, t, match, overlap, quality, params, state, areas)
+    t1 = time.perf_counter()
     n_modes = len(leaders)
     # Triplets of the same mode are not independent evidence: each mode counts once (its mean weight), however many
     # triplets gave it (otherwise a pose reachable through more map triplets, e.g. via a floor shared with the next
@@ -134,6 +141,10 @@ def decide(
         mode_opt = np.bincount(group, weights=w_opt, minlength=n_modes) / np.maximum(size, 1)
         z = float(mode_w.sum())
         rival = pose_density(R[leaders], t[leaders], mode_opt, params) * (float(mode_opt.sum()) / max(z, 1e-300))
+    if timings_ms is not None:
+        t2 = time.perf_counter()
+        timings_ms["weights"] = timings_ms.get("weights", 0.0) + (t1 - t0) * 1e3
+        timings_ms["density"] = timings_ms.get("density", 0.0) + (t2 - t1) * 1e3
     need = params.min_matched_planes if min_matched is None else min_matched
     eligible = (n_matched >= need) & (explained >= params.min_explained_fraction)
     if not eligible.any():
