@@ -11,6 +11,7 @@ Stage functions never take this object; factories and the CLI read it and pass p
 from __future__ import annotations
 
 import io
+import reprlib
 from pathlib import Path
 from typing import Annotated, Any, Literal
 
@@ -21,10 +22,26 @@ __all__ = ["Config", "ConfigError", "load_config", "config_from_dict", "dump_con
 
 # Sequences come from YAML lists; they are accepted as lists and stored as tuples (not a correction of a value).
 FloatSeq = Annotated[tuple[float, ...], Strict(False)]
+# Waits between retries: at least one (the last repeats), none negative.
+BackoffSeq = Annotated[tuple[Annotated[float, Field(ge=0)], ...], Strict(False), Field(min_length=1)]
+# No integer setting needs more; larger ones would overflow the int64 arithmetic of the numba kernels.
+_MAX_INT = 2**31 - 1
+# YAML nested deeper than this (or a tree of aliases that expands to more nodes) is not a config file.
+_MAX_YAML_NODES = 100_000
 
 
 class _Section(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True, strict=True, validate_default=True)
+    # NaN and infinity are not settings: every float has a finite range (a NaN would pass no check, an infinity
+    # would only fail later, in the stage that uses it).
+    model_config = ConfigDict(extra="forbid", frozen=True, strict=True, validate_default=True, allow_inf_nan=False)
+
+    @model_validator(mode="after")
+    def _check_int_range(self) -> "_Section":
+        bad = [f"{name}: must be at most {_MAX_INT} in magnitude, got {value}" for name, value in self
+               if isinstance(value, int) and not isinstance(value, bool) and abs(value) > _MAX_INT]
+        if bad:
+            raise ValueError("\n".join(bad))
+        return self
 
 
 class CameraConfig(_Section):
@@ -338,7 +355,7 @@ class LiveConfig(_Section):
     lost_frames: int = Field(5, ge=1, description="...else after this many frames in a row tracking counts as lost.")
     search_period_s: float = Field(0.25, gt=0, description="While lost, relocalize at most this often.")
     stall_s: float = Field(1.0, gt=0, description="No frame from the source for this long is reported as a stall.")
-    reconnect_backoff_s: FloatSeq = Field(
+    reconnect_backoff_s: BackoffSeq = Field(
         (0.1, 0.2, 0.5, 1.0, 2.0), description="Waits between reconnect attempts of a lost camera (the last repeats)."
     )
 
@@ -350,7 +367,7 @@ class SerialConfig(_Section):
     baudrate: int = Field(921600, gt=0, description="Baud rate of a real port.")
     read_timeout_s: float = Field(0.05, gt=0, description="Read timeout of the reader thread.")
     write_timeout_s: float = Field(0.2, gt=0, description="A write blocked longer than this is reported.")
-    reconnect_backoff_s: FloatSeq = Field(
+    reconnect_backoff_s: BackoffSeq = Field(
         (0.1, 0.2, 0.5, 1.0, 2.0), description="Waits between reopen attempts after an unplug (the last repeats)."
     )
     max_frame_bytes: int = Field(
@@ -384,7 +401,7 @@ class OakConfig(_Section):
     imu_rate_hz: int = Field(100, ge=1, le=500, description="Accelerometer report rate.")
     gravity_tau_s: float = Field(0.5, ge=0, description="Low-pass time constant of the accelerometer for gravity.")
     reconnect: bool = Field(True, description="Reconnect after an unplug or X_LINK error instead of stopping.")
-    reconnect_backoff_s: FloatSeq = Field(
+    reconnect_backoff_s: BackoffSeq = Field(
         (0.5, 1.0, 2.0, 5.0), description="Waits between reconnect attempts (the last repeats)."
     )
     frame_timeout_s: float = Field(3.0, gt=0, description="No depth frame for this long counts as a disconnect.")
@@ -420,24 +437,44 @@ def default_config() -> Config:
 
 
 def _duplicate_keys(node: yaml.Node, path: str = "") -> list[str]:
-    """Paths of duplicate mapping keys anywhere in a composed YAML tree."""
+    """Paths of duplicate mapping keys anywhere in a composed YAML tree.
+
+    Iterative, and each node is visited once: an alias shares its anchor's node, so a file of aliases of aliases
+    (which would expand exponentially) costs no more than its own size.
+    """
     problems = []
-    if isinstance(node, yaml.MappingNode):
-        seen: dict[str, int] = {}
-        for key_node, value_node in node.value:
-            key = str(key_node.value)
-            child = f"{path}.{key}" if path else key
-            if key in seen:
-                problems.append(
-                    f"{child}: duplicate key (first at line {seen[key] + 1}, again at line {key_node.start_mark.line + 1})"
-                )
-            else:
-                seen[key] = key_node.start_mark.line
-            problems.extend(_duplicate_keys(value_node, child))
-    elif isinstance(node, yaml.SequenceNode):
-        for i, item in enumerate(node.value):
-            problems.extend(_duplicate_keys(item, f"{path}[{i}]"))
+    stack = [(node, path)]
+    visited: set[int] = set()
+    while stack:
+        node, path = stack.pop()
+        if id(node) in visited:
+            continue
+        visited.add(id(node))
+        if len(visited) > _MAX_YAML_NODES:
+            problems.append(f"more than {_MAX_YAML_NODES} YAML nodes: not a config file")
+            break
+        children = []
+        if isinstance(node, yaml.MappingNode):
+            seen: dict[str, int] = {}
+            for key_node, value_node in node.value:
+                key = str(key_node.value)
+                child = f"{path}.{key}" if path else key
+                if key in seen:
+                    problems.append(
+                        f"{child}: duplicate key (first at line {seen[key] + 1}, again at line "
+                        f"{key_node.start_mark.line + 1})"
+                    )
+                else:
+                    seen[key] = key_node.start_mark.line
+                children.append((value_node, child))
+        elif isinstance(node, yaml.SequenceNode):
+            children = [(item, f"{path}[{i}]") for i, item in enumerate(node.value)]
+        stack.extend(reversed(children))
     return problems
+
+
+_short_repr = reprlib.Repr()
+_short_repr.maxstring = _short_repr.maxother = 80
 
 
 def _format_pydantic(exc: ValidationError) -> list[str]:
@@ -450,7 +487,7 @@ def _format_pydantic(exc: ValidationError) -> list[str]:
         if err["type"] == "extra_forbidden":
             msg = "unknown key"
         value = err.get("input")
-        shown = "" if err["type"] in ("extra_forbidden", "missing") or isinstance(value, dict) else f", got {value!r}"
+        shown = "" if err["type"] in ("extra_forbidden", "missing") or isinstance(value, dict) else f", got {_short_repr.repr(value)}"
         if err["type"] == "value_error" and isinstance(value, dict):
             # A section-level check reports several fields at once, each as "field: message".
             out.extend(f"{loc}.{line}" if loc else line for line in msg.split("\n"))
@@ -490,6 +527,8 @@ def load_config(path: str | Path | None) -> Config:
         data = yaml.safe_load(text)
     except yaml.YAMLError as exc:
         raise ConfigError(source, [f"not valid YAML: {exc}"]) from None
+    except RecursionError:
+        raise ConfigError(source, ["YAML nested too deeply: not a config file"]) from None
     problems = _duplicate_keys(node) if node is not None else []
     try:
         cfg = config_from_dict(data, source)
