@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import datetime as _dt
 import json
+import math
 import zipfile
 import zlib
 from dataclasses import dataclass, field
@@ -28,6 +29,9 @@ __all__ = ["PlaneMap", "MapFileError", "save_map", "load_map", "MAP_FORMAT", "MA
 MAP_FORMAT = "voxelplane-reloc-map"
 MAP_FORMAT_VERSION = 1
 _PREFIX = "plane_"
+_INT_ENTRIES = {_PREFIX + "counts", _PREFIX + "sample_ptr", "observations", "free_keys"}
+_FLOAT_ENTRIES = {_PREFIX + name for name in ("normals", "offsets", "centroids", "radii", "areas", "covariances",
+                                              "sums", "scatters", "sample_points", "gravity")}
 
 
 class MapFileError(ValueError):
@@ -153,18 +157,31 @@ def load_map(path) -> PlaneMap:
             arrays = {name: npz[name] for name in npz.files if name != "meta"}
         except (zipfile.BadZipFile, zlib.error, EOFError, OSError, ValueError) as exc:
             raise MapFileError(path, f"truncated or corrupted: cannot read its arrays ({exc})") from None
+    # Numbers only, of the kind each array holds: no text parsed as numbers, no records, no complex values.
+    for name, arr in arrays.items():
+        want = "iu" if name in _INT_ENTRIES else "f" if name in _FLOAT_ENTRIES else None
+        if want is not None and arr.dtype.kind not in want:
+            raise MapFileError(path, f"corrupted: array {name!r} has dtype {arr.dtype}, expected "
+                                     f"{'integers' if want == 'iu' else 'floating point numbers'}")
+    free_voxel_m = meta.get("free_voxel_m", 0.0)
+    if isinstance(free_voxel_m, bool) or not isinstance(free_voxel_m, (int, float)) or not (
+            math.isfinite(free_voxel_m) and free_voxel_m >= 0):
+        raise MapFileError(path, f"corrupted: metadata free_voxel_m {free_voxel_m!r}, expected a finite number >= 0")
     try:
         planes = PlaneSet.from_arrays(arrays, _PREFIX, frame="map")
         observations = arrays["observations"]
         free = arrays["free_keys"]
         if free.dtype != np.int64:
             raise ValueError(f"free_keys: expected int64, got {free.dtype}")
-        plane_map = PlaneMap(planes, observations, meta, free_keys=free,
-                             free_voxel_m=float(meta.get("free_voxel_m", 0)))
+        plane_map = PlaneMap(planes, observations, meta, free_keys=free, free_voxel_m=float(free_voxel_m))
     except KeyError as exc:
         raise MapFileError(path, f"corrupted: missing array {exc}") from None
-    except ValueError as exc:
+    except (ValueError, TypeError) as exc:
         raise MapFileError(path, f"corrupted: inconsistent arrays ({exc})") from None
+    g = planes.gravity
+    if g is not None and not (np.all(np.isfinite(g)) and abs(np.linalg.norm(g) - 1.0) < 1e-6):
+        raise MapFileError(path, f"corrupted: gravity {np.asarray(arrays[_PREFIX + 'gravity']).tolist()} is not a "
+                                 "direction (expected a non-zero finite 3-vector, or NaN for none)")
     if meta.get("plane_count") != len(plane_map):
         raise MapFileError(path, f"corrupted: metadata says {meta.get('plane_count')} planes, arrays hold "
                                  f"{len(plane_map)}")
