@@ -6,6 +6,8 @@ Stored value = round(depth_m * depth_scale) as uint16; 0 means no measurement. P
 from __future__ import annotations
 
 import os
+import struct
+import zlib
 from pathlib import Path
 
 import numpy as np
@@ -14,6 +16,9 @@ from reloc.atomic import atomic_write
 
 __all__ = ["read_depth_png_raw", "read_depth_png", "write_depth_png", "write_label_png", "read_label_png"]
 
+# Larger images are refused before decoding (a corrupted or hostile header can claim billions of pixels).
+MAX_PIXELS = 4096 * 4096
+
 
 def read_depth_png_raw(path: str | os.PathLike) -> np.ndarray:
     """The raw (H, W) uint16 values of a 16-bit single-channel PNG. Raises ValueError naming the file."""
@@ -21,12 +26,20 @@ def read_depth_png_raw(path: str | os.PathLike) -> np.ndarray:
 
     try:
         with Image.open(path) as img:
+            if img.width * img.height > MAX_PIXELS:  # checked before decoding anything
+                raise ValueError(f"{path}: image is {img.width}x{img.height}, larger than any depth camera's "
+                                 f"({MAX_PIXELS} pixels at most)")
             img.load()
             mode = img.mode
             arr = np.array(img)
     except FileNotFoundError:
         raise FileNotFoundError(f"{path}: depth image not found") from None
-    except (UnidentifiedImageError, OSError, SyntaxError) as exc:
+    except (UnidentifiedImageError, Image.DecompressionBombError, OSError, SyntaxError, EOFError, struct.error,
+            zlib.error) as exc:
+        raise ValueError(f"{path}: not a readable PNG image ({exc})") from None
+    except ValueError as exc:  # the codec's own complaints ("Truncated IHDR chunk"), named with the file
+        if str(path) in str(exc):
+            raise
         raise ValueError(f"{path}: not a readable PNG image ({exc})") from None
     if arr.ndim != 2:
         raise ValueError(f"{path}: expected a single-channel 16-bit depth image, got mode {mode} with shape {arr.shape}")
