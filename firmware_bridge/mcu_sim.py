@@ -595,7 +595,8 @@ class McuSimulator:
         A received OK/TRACKED pose within these of the ground truth at its stamp counts as correct.
     faults, silent_after_s, silent_for_s, flood_hz:
         Fault injection on what the simulator sends; a silent window (nothing sent, then resumes); odometry sent at
-        ``flood_hz`` instead of ``odom_rate_hz``.
+        ``flood_hz`` instead of ``odom_rate_hz``. :meth:`unplug` and :meth:`plug` pull and reconnect the cable
+        (optionally in the middle of a frame).
     record_sent:
         Keep the last this many sent messages in :attr:`sent_log` (seq -> message), for tests that check that what
         the host accepted is exactly what was sent.
@@ -640,7 +641,7 @@ class McuSimulator:
             "requests_acked": 0, "requests_failed": 0, "requests_unanswered": 0, "poses_received": 0,
             "poses_ok": 0, "poses_bad": 0, "poses_rejected": 0, "poses_unexpected": 0, "poses_unsynced": 0,
             "host_heartbeats": 0, "host_status": 0, "acks_received": 0, "write_failures": 0, "silent_frames": 0,
-            "host_timeouts": 0, "connections": 0,
+            "host_timeouts": 0, "connections": 0, "unplugs": 0, "half_frames_sent": 0,
         }
         self.pose_checks: deque[PoseCheck] = deque(maxlen=10_000)
         # seq -> message of the last ``record_sent`` frames sent (tests check what the host accepted against it).
@@ -655,6 +656,8 @@ class McuSimulator:
         self._request_first_sent: dict[int, int] = {}
         self._manual_requests: deque[int] = deque()
         self._lock = threading.Lock()
+        self._cable_request: tuple[str, object] | None = None  # ("unplug", (mid_frame, hold_s)) | ("plug", endpoint)
+        self._unplugged = False
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
         self._connections_seen = 0
@@ -701,6 +704,47 @@ class McuSimulator:
         with self._lock:
             self._manual_requests.append(int(reason))
 
+    def unplug(self, *, mid_frame: bool = True, hold_s: float = 0.1) -> None:
+        """Fault: pull the cable (thread-safe; done at the next loop turn). With ``mid_frame`` the first half of a
+        heartbeat frame goes out and stays on the line ``hold_s`` before the endpoint is closed, as when a cable is
+        pulled during a write. The firmware keeps driving (its clock and odometry run on); it sends and reads
+        nothing until :meth:`plug`."""
+        with self._lock:
+            self._cable_request = ("unplug", (bool(mid_frame), float(hold_s)))
+
+    def plug(self, endpoint) -> None:
+        """Fault: the cable is back, on ``endpoint`` (e.g. a new :class:`PtyEndpoint` at the same link path); the
+        stream starts afresh as on any new connection (thread-safe)."""
+        with self._lock:
+            self._cable_request = ("plug", endpoint)
+
+    @property
+    def unplugged(self) -> bool:
+        return self._unplugged
+
+    def _cable(self) -> bool:
+        """Carry out an unplug or plug request; True while unplugged."""
+        with self._lock:
+            request, self._cable_request = self._cable_request, None
+        if request is not None and request[0] == "unplug" and not self._unplugged:
+            mid_frame, hold_s = request[1]
+            if mid_frame:
+                _, wire = self.encoder.encode(Heartbeat(self.state, 0, 0, 0, 0, 0), self.now_mcu_ns())
+                if self._send_raw(wire[: len(wire) // 2]):
+                    self.counters["half_frames_sent"] += 1
+                self._stop.wait(hold_s)
+            with contextlib.suppress(OSError):
+                self.endpoint.close()
+            self._unplugged = True
+            self.counters["unplugs"] += 1
+        elif request is not None and request[0] == "plug":
+            self.endpoint = request[1]
+            self._unplugged = False
+            self._connections_seen = -1  # a new connection: fresh decoder, a delimiter and a heartbeat at once
+        if self._unplugged:
+            self._stop.wait(0.01)
+        return self._unplugged
+
     def stats(self) -> dict:
         with self._lock:
             out = dict(self.counters)
@@ -726,6 +770,8 @@ class McuSimulator:
     def _step(self) -> None:
         if not hasattr(self, "_next_odom"):
             self._init_schedule()
+        if self._cable():
+            return
         now = self.now_mcu_ns()
         wait_ns = min(self._next_odom, self._next_hb) - now
         data = self.endpoint.read(4096, min(max(wait_ns, 0) / 1e9, 0.01))

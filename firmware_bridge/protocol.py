@@ -42,13 +42,14 @@ class DecoderStats:
     bad_values: int = 0  # known type, a field out of range (NaN, bad quaternion, ...)
     frames_lost: int = 0  # frames missing according to the sender's sequence numbers
     seq_restarts: int = 0  # a sequence jump too large to be losses (sender rebooted or reconnected)
+    truncated: int = 0  # a partial frame pending when the connection ended (reset()), discarded
 
     @property
     def frames_bad(self) -> int:
         """Frames that reached the receiver but were not accepted."""
         return (
             self.crc_errors + self.framing_errors + self.oversize + self.unknown_versions + self.unknown_types
-            + self.bad_lengths + self.bad_values
+            + self.bad_lengths + self.bad_values + self.truncated
         )
 
     def as_dict(self) -> dict:
@@ -77,7 +78,11 @@ class StreamDecoder:
         self._bad_since_good = False
 
     def reset(self) -> None:
-        """Start of a new connection: drop a partial frame and forget the sender's sequence numbering."""
+        """Start of a new connection: drop a partial frame (counted as truncated: it is never joined to the next
+        connection's bytes) and forget the sender's sequence numbering."""
+        if self._splitter.pending_bytes:
+            self.stats.truncated += 1
+            self._bad_since_good = True
         self._splitter.reset()
         self._last_seq = None
 
