@@ -8,6 +8,7 @@ a non-finite coordinate raises ``ValueError`` naming the file and what was expec
 from __future__ import annotations
 
 import os
+import tokenize
 from pathlib import Path
 
 import numpy as np
@@ -42,8 +43,10 @@ def _read_npy(p: Path) -> np.ndarray:
         arr = np.load(p, allow_pickle=False)
     except FileNotFoundError:
         raise FileNotFoundError(f"{p}: point cloud not found") from None
-    except ValueError as exc:
-        raise ValueError(f"{p}: not a plain numeric .npy array ({exc})") from None
+    except (ValueError, EOFError, SyntaxError, tokenize.TokenError) as exc:  # a bad or truncated header or body
+        raise ValueError(f"{p}: not a plain numeric .npy array ({type(exc).__name__}: {exc})") from None
+    except MemoryError:  # the header claims a shape that would not fit in memory
+        raise ValueError(f"{p}: not a plain numeric .npy array (its header claims more data than fits in memory)") from None
     if not isinstance(arr, np.ndarray) or arr.ndim != 2 or arr.shape[1] != 3:
         raise ValueError(f"{p}: expected an (N, 3) array of points, got shape {getattr(arr, 'shape', None)}")
     if arr.dtype.kind not in "fiu":
@@ -119,6 +122,8 @@ def _parse_header(data: bytes, p: Path) -> tuple[str, list[dict], int]:
         elif tok[0] == "property":
             if not elements:
                 raise ValueError(f"{where}: property before any element")
+            if len(tok) >= 3 and tok[-1] in [name for name, _ in elements[-1]["props"]]:
+                raise ValueError(f"{where}: property {tok[-1]!r} declared twice in element {elements[-1]['name']!r}")
             if len(tok) == 3 and tok[1] in _PLY_TYPES:
                 elements[-1]["props"].append((tok[2], _PLY_TYPES[tok[1]]))
             elif len(tok) == 5 and tok[1] == "list" and tok[2] in _PLY_TYPES and tok[3] in _PLY_TYPES:
@@ -178,6 +183,8 @@ def _skip_binary_element(data: bytes, offset: int, element: dict, endian: str, p
                 if offset + ct.itemsize > len(data):
                     raise ValueError(f"{p}: PLY element '{element['name']}' runs past the end of the file")
                 n = int(np.frombuffer(data, dtype=ct, count=1, offset=offset)[0])
+                if n < 0:  # (a negative length would step back: rows could loop over the same bytes forever)
+                    raise ValueError(f"{p}: PLY element '{element['name']}' has a list of negative length {n}")
                 offset += ct.itemsize + n * np.dtype(item_t).itemsize
             else:
                 offset += np.dtype(t).itemsize
