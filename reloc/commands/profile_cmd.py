@@ -270,6 +270,15 @@ def _machine() -> dict:
             "python": platform.python_version(), "numpy": np.__version__, "numba": numba.__version__}
 
 
+def _load_average() -> float | None:
+    import os
+
+    try:
+        return os.getloadavg()[0]
+    except (AttributeError, OSError):
+        return None
+
+
 def _parse_size(size: str | None) -> dict:
     if size is None:
         return {}
@@ -362,13 +371,17 @@ def profile(camera, map_spec, frames, window, mode, warmup_frames, size, json_pa
         profiler.note_compile(compile_info["seconds"])
         echo(f"numba: {compile_info['kernels']} kernels ready in {compile_info['seconds']:.2f} s "
              f"({compile_info['cold_kernels']} compiled on a cold cache)")
-        t_run = time.perf_counter()
+        t_run, cpu_run = time.perf_counter(), time.process_time()
         if mode == "sequential":
             run.update(_run_sequential(source, extract, relocalizer, profiler, k, make_submap_fuser(cfg), frames,
                                        n_warm, quiet))
         else:
             run.update(_run_live(source, extract, relocalizer, profiler, k, map_planes, cfg, frames, echo))
         run["wall_s"] = time.perf_counter() - t_run
+        # CPU seconds of this process per wall second, and the load: on a shared machine stage times include
+        # waiting for a core.
+        run["cpu_s"] = time.process_time() - cpu_run
+        run["load_average_1min"] = _load_average()
     finally:
         source.close()
 
@@ -383,7 +396,8 @@ def profile(camera, map_spec, frames, window, mode, warmup_frames, size, json_pa
     click.echo(format_report(report))
     click.echo(f"frames: {run['frames_processed']} timed, {run.get('frames_compiling', 0)} left out (numba compiled "
                f"during them), {sum(run['bad'].values())} bad {run['bad'] or ''}".rstrip()
-               + f"; relocalizations: {run['statuses']}; {run['wall_s']:.1f} s")
+               + f"; relocalizations: {run['statuses']}; {run['wall_s']:.1f} s wall, {run['cpu_s']:.1f} s CPU"
+               + (f", load average {run['load_average_1min']:.1f}" if run["load_average_1min"] is not None else ""))
     if json_path:
         atomic_write_text(json_path, json.dumps(_plain(report), allow_nan=False) + "\n")
     if trace_path:
