@@ -168,8 +168,16 @@ class Recorder:
     def __enter__(self) -> "Recorder":
         return self
 
-    def __exit__(self, *exc) -> None:
-        self.close()
+    def __exit__(self, exc_type, exc, tb) -> None:
+        if exc_type is None or not issubclass(exc_type, OSError):
+            self.close()
+            return
+        # Leaving on a system error (a full disk): keep what can still be kept, but report the error that stopped
+        # the recording, not a later one from the same cause.
+        try:
+            self.close()
+        except OSError:
+            pass
 
     def _write_camera_yaml(self) -> None:
         k = {**self._intrinsics.as_dict(), "depth_scale": float(self.depth_scale)}

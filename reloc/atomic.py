@@ -59,9 +59,13 @@ def atomic_write(path: str | os.PathLike, mode: str = "wb") -> Iterator[IO]:
             fh.flush()
             os.fsync(fh.fileno())
         os.replace(tmp, target)
-    except BaseException:
+    except BaseException as exc:
         with contextlib.suppress(OSError):
             os.unlink(tmp)
+        if isinstance(exc, OSError) and exc.errno is not None and exc.filename is None:
+            # "No space left on device" alone does not say which file; name it, and that it was not replaced.
+            raise OSError(exc.errno, f"{exc.strerror or exc}: writing {target} failed; the file is as it was "
+                                     "before") from exc
         raise
     # Make the rename itself durable where the platform allows it.
     with contextlib.suppress(OSError):

@@ -60,6 +60,9 @@ def main(argv: list[str] | None = None) -> int:
     except (ValueError, FileNotFoundError) as exc:
         click.echo(f"error: {exc}", err=True)
         return 2
+    except OSError as exc:  # the system refused (a full disk, a vanished device): one line, not a traceback
+        click.echo(f"error: {exc}", err=True)
+        return 1
     return 0
 
 
