@@ -155,3 +155,33 @@ def test_table8_rows_from_known_durations():
 def test_bad_options_are_named(args, message):
     result = CliRunner().invoke(cli, ["profile", "--map", "sim:living_room", *args])
     assert result.exit_code != 0 and message in result.output
+
+
+def test_frames_that_compile_or_have_no_depth_are_left_out_of_the_stage_times(monkeypatch):
+    """A frame during which numba compiled goes to the compile time; a frame without depth is counted as bad."""
+    from types import SimpleNamespace
+
+    from reloc.commands import profile_cmd
+    from reloc.planeset import PlaneSet
+
+    compiled = {"n": 0}
+    monkeypatch.setattr(profile_cmd, "_signature_count", lambda: compiled["n"])
+
+    def extract(frame):
+        if frame.seq == 1:
+            compiled["n"] += 1  # as if a kernel compiled for new argument types during this frame
+        return SimpleNamespace(planes=PlaneSet.empty(frame="cam"), timings_ms={"fit": 0.1, "total": 0.1})
+
+    relocalizer = SimpleNamespace(locate=lambda submap: SimpleNamespace(status="rejected",
+                                                                        timings_ms={"select": 0.2, "total": 0.2}))
+    prof = Profiler()
+    pipe = profile_cmd.SequentialPipeline(extract, relocalizer, prof)
+    depth = np.full((4, 4), 2.0, np.float32)
+    for seq, d in enumerate([depth, depth, np.zeros_like(depth), depth]):
+        pipe.process(SimpleNamespace(depth_m=d, T_world_cam=None, seq=seq))
+    assert pipe.processed == 2 and pipe.compiled_frames == 1 and pipe.bad == {"no_valid_depth": 1}
+    stages = prof.summary()["stages"]
+    assert {k: v["count"] for k, v in stages.items()} == {
+        "frame": 2, "extract": 2, "extract.fit": 2, "submap": 2, "reloc": 2, "reloc.select": 2}
+    assert prof.summary()["compile_s"] > 0
+    assert pipe.statuses == {"rejected": 2}  # outcomes of the timed frames

@@ -334,10 +334,13 @@ def profile(camera, map_spec, frames, window, mode, warmup_frames, size, json_pa
     The grouped rows are the paper's: Single frame = plane extraction (merging included), Local observation = the
     submap of the last --window frames, Localization = ordering the submap planes, triplet selection, transforms
     and refinement, Pose likelihood = verification (Eq. 10-11) and the decision (frequency weights, kernel density,
-    twin probe); the detailed stages are listed under each row. Numba compilation is done first and reported apart.
+    twin probe); the detailed stages are listed under each row. Numba compilation is done first and reported apart
+    (a frame during which a kernel still compiled is left out of the stage times).
+
     Sequential mode (the default) runs the stages one after the other on one thread, every frame relocalized, so each
-    stage's time is its own; --mode live uses the threaded live loop (see `reloc run`), where stages compete for
-    the cores.
+    stage's time is its own; its trace puts them on the tracks of the live loop's threads (capture, processing,
+    relocalization) on one timeline. --mode live uses the threaded live loop (as `reloc run --rate fast`): real
+    thread tracks, but the stages compete for the cores and relocalization runs only when triggered.
     """
     import json
 
