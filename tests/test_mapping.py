@@ -149,9 +149,17 @@ def test_corrupted_map_files_raise_the_named_error(tmp_path, living_map):
     arrays["meta"] = np.frombuffer(json.dumps(meta).encode(), np.uint8)
     np.savez(old, **arrays)
 
+    empty = tmp_path / "empty.npz"
+    empty.write_bytes(b"")
+    single = tmp_path / "single.npz"
+    with open(single, "wb") as fh:
+        np.save(fh, np.zeros(3))
+
     cases = {
-        truncated: "not a map file|truncated",
-        garbage: "not a map file",
+        truncated: "truncated or corrupted",
+        garbage: r"not a map file: not an \.npz \(zip\) archive",
+        empty: "empty file",
+        single: r"not a map file: not an \.npz",
         other: "no 'meta' entry",
         no_meta: "no 'meta' entry",
         old: f"version {MAP_FORMAT_VERSION + 1}",
@@ -161,6 +169,7 @@ def test_corrupted_map_files_raise_the_named_error(tmp_path, living_map):
         with pytest.raises(MapFileError, match=pattern) as info:
             load_map(path)
         assert str(path) in str(info.value)
+        assert "pickle" not in str(info.value)  # numpy's words for a non-zip file would mislead
 
 
 def test_plane_map_validates_its_inputs(living_map):

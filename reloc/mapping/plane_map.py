@@ -131,10 +131,17 @@ def load_map(path) -> PlaneMap:
         raise MapFileError(path, "no such file")
     if path.is_dir():
         raise MapFileError(path, "is a directory, expected a map file (.npz)")
+    with open(path, "rb") as fh:
+        head = fh.read(4)
+    if not head:
+        raise MapFileError(path, "empty file, expected a map file (.npz)")
+    if head != b"PK\x03\x04":
+        # Without this check numpy reports any non-zip file as "pickled data", which misleads.
+        raise MapFileError(path, f"not a map file: not an .npz (zip) archive (starts with {head!r})")
     try:
         npz = np.load(path, allow_pickle=False)
     except (zipfile.BadZipFile, zlib.error, EOFError, OSError, ValueError) as exc:
-        raise MapFileError(path, f"not a map file: not a readable .npz archive ({exc})") from None
+        raise MapFileError(path, f"truncated or corrupted .npz archive ({exc})") from None
     if not isinstance(npz, np.lib.npyio.NpzFile):
         raise MapFileError(path, "not a map file: a single .npy array, expected an .npz archive")
     with npz:
