@@ -68,6 +68,8 @@ SEVEN_SCENES_INTRINSICS = Intrinsics(fx=585.0, fy=585.0, cx=320.0, cy=240.0, wid
 # 7-Scenes poses are printed with 7-8 significant digits; rotations farther than this from orthonormal are rejected,
 # nearer ones are projected back onto SO(3).
 _POSE_ORTHO_TOL = 1e-3
+# Timestamps are int64 nanoseconds: seconds beyond this do not fit.
+_MAX_STAMP_S = Decimal(2**63 - 1) / 1_000_000_000
 
 
 @dataclass(frozen=True)
@@ -391,6 +393,10 @@ def read_intrinsics_yaml(path: Path) -> Intrinsics:
         data = yaml.safe_load(path.read_text(encoding="utf-8"))
     except yaml.YAMLError as exc:
         raise ValueError(f"{path}: not valid YAML ({exc})") from None
+    except UnicodeDecodeError:
+        raise ValueError(f"{path}: not a UTF-8 text file") from None
+    except RecursionError:
+        raise ValueError(f"{path}: YAML nested too deeply") from None
     return Intrinsics.from_dict(data, source=str(path))
 
 
@@ -428,6 +434,8 @@ def parse_stamp_ns(text: str, where: str = "timestamp") -> int:
         raise ValueError(f"{where}: expected a timestamp in seconds, got {text!r}") from None
     if not value.is_finite():
         raise ValueError(f"{where}: expected a finite timestamp, got {text!r}")
+    if value.copy_abs() >= _MAX_STAMP_S:  # (before int(): "1e999999999" would build a billion-digit integer)
+        raise ValueError(f"{where}: expected a timestamp within +-{_MAX_STAMP_S} s (int64 nanoseconds), got {text!r}")
     return int((value * 1_000_000_000).to_integral_value())
 
 
@@ -569,7 +577,10 @@ def _seven_scenes_intrinsics(root: Path, first: Path) -> tuple[Intrinsics, str]:
             fx, fy, cx, cy = values
         else:
             raise ValueError(f"{txt}: expected a 3x3 camera matrix or 'fx fy cx cy', got {values.size} numbers")
-        return Intrinsics(float(fx), float(fy), float(cx), float(cy), w, h, depth_scale=1000.0), ""
+        try:
+            return Intrinsics(float(fx), float(fy), float(cx), float(cy), w, h, depth_scale=1000.0), ""
+        except ValueError as exc:
+            raise ValueError(f"{txt}: {exc}") from None
     if (w, h) != (640, 480):
         raise ValueError(
             f"{first}: image is {w}x{h} and there is no camera.yaml or camera-intrinsics.txt; the 7-Scenes default "

@@ -86,6 +86,12 @@ class Intrinsics:
         missing = [k for k in ("fx", "fy", "cx", "cy", "width", "height") if k not in d]
         if missing:
             raise ValueError(f"{source}: missing keys {missing}; expected fx, fy, cx, cy, width, height[, depth_scale]")
+        for key in ("fx", "fy", "cx", "cy", "width", "height", "depth_scale"):
+            v = d.get(key)
+            # Never silently corrected: a yes/no is not a number, and an image size is a whole number of pixels.
+            if isinstance(v, bool) or (key in ("width", "height") and isinstance(v, float) and not v.is_integer()):
+                raise ValueError(f"{source}: {key}: expected a {'whole ' if key in ('width', 'height') else ''}"
+                                 f"number, got {v!r}")
         try:
             return cls(
                 fx=float(d["fx"]), fy=float(d["fy"]), cx=float(d["cx"]), cy=float(d["cy"]),
