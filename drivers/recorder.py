@@ -35,7 +35,7 @@ from drivers.depth_png import write_depth_png, write_label_png
 __all__ = ["Recorder", "RecordSummary", "record", "stamp_text"]
 
 _TEXT_FILES = ("depth.txt", "groundtruth.txt", "odometry.txt", "gravity.txt", "camera.yaml", "recording.json")
-_POSE_FILES = {"groundtruth": "groundtruth.txt", "ground_truth": "groundtruth.txt", "odometry": "odometry.txt"}
+_POSE_FILES = {"groundtruth": "groundtruth.txt", "odometry": "odometry.txt"}
 
 
 def stamp_text(stamp_ns: int) -> str:

@@ -2,7 +2,7 @@
 
 Defaults match the robot's camera: an OAK-D class stereo sensor (640x400, stereo noise) on the robot trajectory
 through the living room, 30 Hz. Frames carry the simulator's ground truth (``T_world_cam`` with pose_source
-"ground_truth", ``gravity_cam``, ``labels``).
+"groundtruth", ``gravity_cam``, ``labels``).
 """
 
 from __future__ import annotations

@@ -14,7 +14,7 @@ The contract, checked for every source by the tests (``check_frame_contract``):
 - ``stamp_ns`` (int64 nanoseconds) strictly increases and ``seq`` increases (a gap in ``seq`` is a dropped frame).
 - A frame may carry ``gravity_cam`` (unit, pointing down, camera frame: from an IMU or the simulator) and a pose
   ``T_world_cam`` whose ``pose_source`` says what it is ("odometry" from the robot or a tracker, "groundtruth" from
-  a dataset or "ground_truth" from the simulator); the live loop uses only odometry-like poses to build submaps.
+  a dataset or the simulator, :data:`reloc.camera.POSE_SOURCES`); the live loop uses only odometry-like poses to build submaps.
 - :attr:`FrameSource.rate_hz` is the nominal frame rate, or None when unknown.
 - ``close()`` releases the device or files and stops any capture thread (joined before it returns); it is
   idempotent, and leaving the ``with`` block calls it. Iterating a closed source raises ``RuntimeError``.
@@ -169,7 +169,7 @@ def check_frame_contract(frames: list[DepthFrame], intrinsics: Intrinsics) -> No
         if f.gravity_cam is not None:
             assert abs(np.linalg.norm(f.gravity_cam) - 1.0) < 1e-6, f"frame {i}: gravity_cam not unit"
         if f.T_world_cam is not None:
-            assert f.pose_source in ("odometry", "groundtruth", "ground_truth"), (
+            assert f.pose_source in ("odometry", "groundtruth"), (
                 f"frame {i}: pose_source {f.pose_source!r} for a frame with a pose")
         prev_stamp, prev_seq = f.stamp_ns, f.seq
 

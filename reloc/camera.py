@@ -13,7 +13,7 @@ import numpy as np
 
 from reloc.transforms import check_transform
 
-__all__ = ["Intrinsics", "DepthFrame", "gravity_from_camera_y"]
+__all__ = ["Intrinsics", "DepthFrame", "POSE_SOURCES", "gravity_from_camera_y"]
 
 
 @dataclass(frozen=True)
@@ -107,6 +107,10 @@ def gravity_from_camera_y() -> np.ndarray:
     return np.array([0.0, 1.0, 0.0])
 
 
+#: What a frame's ``T_world_cam`` is: exact (a dataset's or the simulator's ground truth), odometry, or absent.
+POSE_SOURCES = ("groundtruth", "odometry", "none")
+
+
 @dataclass(frozen=True)
 class DepthFrame:
     """One depth image with what is known about it.
@@ -116,6 +120,9 @@ class DepthFrame:
     - ``seq``: sequence number from the source, increasing.
     - ``T_world_cam``: optional 4x4 pose (ground truth or odometry; ``pose_source`` says which).
     - ``gravity_cam``: optional unit vector (3,) of gravity (pointing down) in the camera frame.
+    - ``pose_source``: one of :data:`POSE_SOURCES`: "groundtruth" (a dataset's or the simulator's exact pose, the
+      name of the TUM file it is read from and written to), "odometry" or "none". The older spelling
+      "ground_truth" is accepted and stored as "groundtruth".
     """
 
     depth_m: np.ndarray
@@ -149,6 +156,11 @@ class DepthFrame:
             if g.shape != (3,) or not np.isfinite(norm) or norm < 1e-9:
                 raise ValueError(f"DepthFrame.gravity_cam: expected a non-zero 3-vector, got {g.tolist()}")
             object.__setattr__(self, "gravity_cam", g / norm)
+        if self.pose_source == "ground_truth":
+            object.__setattr__(self, "pose_source", "groundtruth")
+        elif self.pose_source not in POSE_SOURCES:
+            raise ValueError(f"DepthFrame.pose_source: expected one of {', '.join(POSE_SOURCES)}, "
+                             f"got {self.pose_source!r}")
         if self.labels is not None and self.labels.shape != depth.shape:
             raise ValueError(f"DepthFrame.labels: expected shape {depth.shape}, got {self.labels.shape}")
 

@@ -49,7 +49,7 @@ def people_tracks(scene: Scene, n_frames: int, n_people: int, seed: int = 0, rat
 class SimCamera:
     """Iterable of simulated :class:`~reloc.camera.DepthFrame` along ``trajectory_poses`` (N, 4, 4 T_world_cam).
 
-    ``len()`` and indexing work too. Frames carry ``T_world_cam`` (pose_source "ground_truth"), ``gravity_cam`` and
+    ``len()`` and indexing work too. Frames carry ``T_world_cam`` (pose_source "groundtruth"), ``gravity_cam`` and
     ``labels`` (plane ids, 0 for none). ``people`` moving cylinders walk through the scene.
     """
 
@@ -100,7 +100,7 @@ class SimCamera:
         T = self.poses[i]
         return DepthFrame(
             depth_m=depth, intrinsics=self.intrinsics, stamp_ns=self.stamp_ns(i), seq=i, T_world_cam=T.copy(),
-            gravity_cam=gravity_in_camera(T), pose_source="ground_truth", labels=labels,
+            gravity_cam=gravity_in_camera(T), pose_source="groundtruth", labels=labels,
         )
 
     def __iter__(self) -> Iterator[DepthFrame]:

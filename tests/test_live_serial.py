@@ -68,7 +68,7 @@ class RobotCamera(FrameSource):
             depth, labels = render(self.scene, self._intr, T)
             depth, labels = self.noise.apply(depth, labels, self._intr, np.random.default_rng(seq))
             yield DepthFrame(depth, self._intr, now, seq, T_world_cam=T, gravity_cam=gravity_in_camera(T),
-                             pose_source="ground_truth", labels=labels)
+                             pose_source="groundtruth", labels=labels)
             seq += 1
 
 

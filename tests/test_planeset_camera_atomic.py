@@ -114,6 +114,18 @@ def test_depth_frame_validation():
     assert DepthFrame(d, K, stamp_ns=0).valid_mask.sum() == 8
 
 
+def test_depth_frame_pose_source_has_one_spelling():
+    K = Intrinsics(500.0, 500.0, 2.0, 2.0, 4, 3)
+    d = np.ones((3, 4), np.float32)
+    for source in ("groundtruth", "odometry", "none"):
+        assert DepthFrame(d, K, stamp_ns=0, pose_source=source).pose_source == source
+    # The simulator's old spelling is read as the one the readers, the recorder and the live loop use.
+    assert DepthFrame(d, K, stamp_ns=0, pose_source="ground_truth").pose_source == "groundtruth"
+    with pytest.raises(ValueError, match=r"DepthFrame.pose_source: expected one of groundtruth, odometry, none, "
+                                         r"got 'gt'"):
+        DepthFrame(d, K, stamp_ns=0, pose_source="gt")
+
+
 def test_atomic_write_keeps_old_file_on_failure(tmp_path):
     target = tmp_path / "map.npz"
     atomic_write_text(target, "old")

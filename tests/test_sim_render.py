@@ -161,7 +161,7 @@ def test_frames_carry_pose_gravity_and_stamps():
     for i, f in enumerate(frames):
         R = f.T_world_cam[:3, :3]
         np.testing.assert_allclose(f.gravity_cam, R.T @ [0, 0, -1], atol=1e-12)
-        assert f.seq == i and f.pose_source == "ground_truth"
+        assert f.seq == i and f.pose_source == "groundtruth"
         assert f.labels.dtype == np.int32
     stamps = np.array([f.stamp_ns for f in frames])
     np.testing.assert_array_equal(np.diff(stamps), [33333333, 33333334, 33333333])

@@ -81,6 +81,8 @@ def test_reader_if_present_agrees(tmp_path):
     seq = readers.open_sequence(tmp_path / "seq")
     assert len(seq) == 3
     for f, g in zip(frames, seq):
+        # One spelling for exact poses, whether they come from the simulator or from disk.
+        assert f.pose_source == g.pose_source == "groundtruth"
         ok = f.valid_mask
         assert np.abs(np.nan_to_num(g.depth_m[ok]) - f.depth_m[ok]).max() <= 0.5 / intr.depth_scale + 1e-6
         dt, dr = pose_error(g.T_world_cam, f.T_world_cam)

@@ -44,7 +44,7 @@ from reloc.transforms import invert, pose_error
 __all__ = ["LiveLoop", "LiveSummary", "RelocRecord", "THREAD_NAMES"]
 
 THREAD_NAMES = ("capture", "processing", "relocalization", "serial", "keyboard")
-_TRUTH_SOURCES = ("groundtruth", "ground_truth")
+_TRUTH_SOURCES = ("groundtruth",)
 
 
 @dataclass(frozen=True)

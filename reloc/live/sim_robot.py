@@ -86,5 +86,5 @@ class FirmwareSyncedSimSource(FrameSource):
             rng = np.random.default_rng(np.random.SeedSequence([self.seed, 41, seq]))
             depth, labels = self.noise.apply(depth, labels, self._intrinsics, rng)
             yield DepthFrame(depth, self._intrinsics, now, seq, T_world_cam=T, gravity_cam=gravity_in_camera(T),
-                             pose_source="ground_truth", labels=labels)
+                             pose_source="groundtruth", labels=labels)
             seq += 1
