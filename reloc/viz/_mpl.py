@@ -26,7 +26,8 @@ def require_matplotlib():
         import matplotlib
     except ImportError as exc:  # pragma: no cover - depends on the environment
         raise ImportError(
-            "pictures need matplotlib: install the viz extra (pip install 'voxelplane-reloc[viz]')"
+            "pictures need matplotlib: install the viz extra (pip install -e '.[viz]' in a checkout, "
+            "or pip install 'voxelplane-reloc[viz]')"
         ) from exc
     matplotlib.use("Agg", force=False)
     return matplotlib

@@ -48,6 +48,34 @@ def _points_of(ps: PlaneSet, mask: np.ndarray) -> np.ndarray:
     return ps.sample_points[np.repeat(mask, sizes)].astype(np.float64)
 
 
+def draw_map(ax, plane_map: PlaneSet, basis: np.ndarray, max_points: int = 200_000) -> tuple[np.ndarray, np.ndarray]:
+    """Scatter the map's planes seen from above: horizontal ones light grey, the rest dark grey on top.
+
+    Returns the (N, 2) floor and wall points drawn (at most ``max_points`` each, a fixed random subset).
+    """
+    rng = np.random.default_rng(0)
+
+    def thin(pts: np.ndarray) -> np.ndarray:
+        return pts if len(pts) <= max_points else pts[rng.choice(len(pts), max_points, replace=False)]
+
+    vertical = _split_vertical(plane_map, plane_map.gravity)
+    floor_xy = thin(_points_of(plane_map, ~vertical)) @ basis.T
+    wall_xy = thin(_points_of(plane_map, vertical)) @ basis.T
+    ax.scatter(floor_xy[:, 0], floor_xy[:, 1], s=1.5, c=MAP_FLOOR_COLOR, marker="s", lw=0, rasterized=True, zorder=1)
+    ax.scatter(wall_xy[:, 0], wall_xy[:, 1], s=2.0, c=MAP_COLOR, lw=0, rasterized=True, zorder=2,
+               label=f"map: {len(plane_map)} planes")
+    return floor_xy, wall_xy
+
+
+def finish_map_axes(ax, basis: np.ndarray) -> None:
+    """Equal aspect, metre labels in map coordinates, a faint grid."""
+    ax.set_aspect("equal", adjustable="datalim")  # fill the axes box; the data limits grow instead
+    ax.set_xlabel("map x [m]" if abs(basis[0, 0]) > 0.999 else "map, across gravity [m]")
+    ax.set_ylabel("map y [m]" if abs(basis[1, 1]) > 0.999 else "map, across gravity [m]")
+    ax.grid(True, color="#eeeeee", lw=0.8, zorder=0)
+    ax.set_axisbelow(True)
+
+
 def _wedge(ax, T_map_cam: np.ndarray, basis: np.ndarray, color: str, label: str, hfov_rad: float,
            length_m: float, linestyle: str = "-") -> None:
     """Draw a camera as a view wedge (its horizontal field of view) and its position as a dot."""
@@ -96,17 +124,7 @@ def plot_map_topdown(
     basis = topdown_basis(plane_map.gravity)
     fig = new_figure(width_px, height_px)
     ax = fig.subplots()
-    rng = np.random.default_rng(0)
-
-    def thin(pts: np.ndarray) -> np.ndarray:
-        return pts if len(pts) <= max_points else pts[rng.choice(len(pts), max_points, replace=False)]
-
-    vertical = _split_vertical(plane_map, plane_map.gravity)
-    floor_xy = thin(_points_of(plane_map, ~vertical)) @ basis.T
-    wall_xy = thin(_points_of(plane_map, vertical)) @ basis.T
-    ax.scatter(floor_xy[:, 0], floor_xy[:, 1], s=1.5, c=MAP_FLOOR_COLOR, marker="s", lw=0, rasterized=True, zorder=1)
-    ax.scatter(wall_xy[:, 0], wall_xy[:, 1], s=2.0, c=MAP_COLOR, lw=0, rasterized=True, zorder=2,
-               label=f"map: {len(plane_map)} planes")
+    floor_xy, wall_xy = draw_map(ax, plane_map, basis, max_points)
 
     info = []
     if submap is not None:
@@ -134,11 +152,7 @@ def plot_map_topdown(
     elif submap is not None and not relocalized:
         info.append("not relocalized")
 
-    ax.set_aspect("equal")
-    ax.set_xlabel("map x [m]" if abs(basis[0, 0]) > 0.999 else "map, across gravity [m]")
-    ax.set_ylabel("map y [m]" if abs(basis[1, 1]) > 0.999 else "map, across gravity [m]")
-    ax.grid(True, color="#eeeeee", lw=0.8, zorder=0)
-    ax.set_axisbelow(True)
+    finish_map_axes(ax, basis)
     head = title or "map from above"
     ax.set_title(head + (f"  ({'; '.join(info)})" if info else ""))
     leg = ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=9, frameon=False, markerscale=4)
