@@ -43,9 +43,13 @@ def _percentiles(values) -> dict:
             "mean": round(float(v.mean()), 3)}
 
 
-def run_demo(spec: DemoSpec | None = None, cfg=None, *, progress: Callable[[str, int, int], None] | None = None) -> dict:
+def run_demo(spec: DemoSpec | None = None, cfg=None, *, progress: Callable[[str, int, int], None] | None = None,
+             keep: dict | None = None) -> dict:
     """Run the demo; ``progress(step, done, total)`` is called as it goes. Returns the figures as a JSON-able dict:
-    counts (TP, TN, FP, FN), precision, recall, pose errors, per-stage latency, and the time of each phase."""
+    counts (TP, TN, FP, FN), precision, recall, pose errors, per-stage latency, and the time of each phase.
+
+    ``keep``: a dict that receives what the pictures need (``scene``, ``plane_source``, ``plane_map``,
+    ``relocalizer``, ``queries``, in the order of the outcomes)."""
     from sim.scenes import make_scene
 
     from reloc._numba import warm_up
@@ -119,6 +123,8 @@ def run_demo(spec: DemoSpec | None = None, cfg=None, *, progress: Callable[[str,
 
     outcomes = evaluate_queries(reloc, queries, spec.scene, tick)
     phases["relocalize_s"] = time.perf_counter() - t
+    if keep is not None:
+        keep.update(scene=scene, plane_source=source, plane_map=plane_map, relocalizer=reloc, queries=queries)
     phases["total_s"] = time.perf_counter() - t0
 
     s = summarize(spec.scene, outcomes)
