@@ -54,7 +54,7 @@ def sim(scene, trajectory, n_frames, seed, scene_seed, noise, camera, width, hei
     click.echo(f"  valid pixels {100 * s.valid_fraction:.1f}%, labelled {100 * s.labelled_fraction:.1f}%, "
                f"median {s.visible_planes_median:.0f} planes per frame")
     click.echo(f"  {s.seconds:.1f} s ({fps:.0f} frames/s) + {t_traj:.1f} s trajectory; files: depth/ labels/ "
-               "depth.txt labels.txt groundtruth.txt camera.yaml planes.json sim.json")
+               "depth.txt labels.txt groundtruth.txt gravity.txt camera.yaml planes.json sim.json")
     if s.unrepresentable_pixels:
         click.echo(f"  note: {s.unrepresentable_pixels} pixels lay beyond 65535 / depth_scale = "
                    f"{65535 / s.depth_scale:.1f} m and were written as 0 (no measurement)")

@@ -6,6 +6,9 @@ Layout of ``out_dir``:
   timestamp in seconds with 6 decimals (as TUM RGB-D names its files).
 - ``depth.txt``: ``timestamp filename`` per frame (TUM header comments).
 - ``groundtruth.txt``: ``timestamp tx ty tz qx qy qz qw``, camera (optical frame) to world.
+- ``gravity.txt``: ``timestamp gx gy gz``, the exact gravity direction (unit, pointing down) in the camera frame, as
+  an IMU would give it (``drivers.readers`` reads it into ``DepthFrame.gravity_cam``); one row per frame that has
+  one (the simulator's frames always do).
 - ``labels/<t>.png`` and ``labels.txt``: uint16 plane id per pixel, 0 for none.
 - ``camera.yaml``: fx, fy, cx, cy, width, height, depth_scale.
 - ``planes.json``: every plane of the scene in the world frame: id, kind, normal, offset, polygons, bounding box,
@@ -126,6 +129,9 @@ def write_sequence(
                    "# timestamp filename"]
     gt_lines = ["# ground truth trajectory (camera optical frame to world)", f"# simulated: scene {scene.name}",
                 "# timestamp tx ty tz qx qy qz qw"]
+    grav_lines = ["# gravity direction (unit, pointing down, camera frame; exact, from the simulator)",
+                  f"# simulated: scene {scene.name}", "# timestamp gx gy gz"]
+    n_gravity = 0
     intr = None
     valid, labelled, n_visible = [], [], []
     unrepresentable = 0
@@ -157,6 +163,9 @@ def write_sequence(
         label_lines.append(f"{name} labels/{name}.png")
         tum = tum_from_transform(frame.T_world_cam)
         gt_lines.append(name + " " + " ".join(f"{v:.9f}" for v in tum))
+        if frame.gravity_cam is not None:
+            grav_lines.append(name + " " + " ".join(f"{v:.9f}" for v in frame.gravity_cam))
+            n_gravity += 1
         valid.append(ok.mean())
         labelled.append((labels > 0).mean())
         n_visible.append(len(np.unique(labels[labels > 0])))
@@ -166,6 +175,10 @@ def write_sequence(
     atomic_write_text(out / "depth.txt", "\n".join(depth_lines) + "\n")
     atomic_write_text(out / "labels.txt", "\n".join(label_lines) + "\n")
     atomic_write_text(out / "groundtruth.txt", "\n".join(gt_lines) + "\n")
+    if n_gravity:
+        atomic_write_text(out / "gravity.txt", "\n".join(grav_lines) + "\n")
+    elif (out / "gravity.txt").exists():  # an overwritten sequence must not keep the old one's gravity
+        (out / "gravity.txt").unlink()
     atomic_write_text(out / "camera.yaml", yaml.safe_dump(intr.as_dict(), sort_keys=False))
     atomic_write_text(out / "planes.json", json.dumps(planes_json(scene), indent=1) + "\n")
     summary = WriteSummary(

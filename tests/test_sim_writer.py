@@ -41,7 +41,11 @@ def test_written_sequence_reads_back(tmp_path):
     depth_rows = _read_list(out / "depth.txt")
     gt_rows = _read_list(out / "groundtruth.txt")
     label_rows = _read_list(out / "labels.txt")
-    assert len(depth_rows) == len(gt_rows) == len(label_rows) == 5
+    grav_rows = _read_list(out / "gravity.txt")
+    assert len(depth_rows) == len(gt_rows) == len(label_rows) == len(grav_rows) == 5
+    for f, g in zip(frames, grav_rows):
+        assert g[0] == stamp_name(f.stamp_ns)
+        np.testing.assert_allclose(np.array(g[1:], dtype=np.float64), f.gravity_cam, atol=1e-8)
     for f, (ts, fname), gt, (_, lname) in zip(frames, depth_rows, gt_rows, label_rows):
         assert ts == stamp_name(f.stamp_ns) == gt[0]
         assert abs(float(ts) * 1e9 - f.stamp_ns) < 1e3
@@ -87,6 +91,10 @@ def test_reader_if_present_agrees(tmp_path):
         assert np.abs(np.nan_to_num(g.depth_m[ok]) - f.depth_m[ok]).max() <= 0.5 / intr.depth_scale + 1e-6
         dt, dr = pose_error(g.T_world_cam, f.T_world_cam)
         assert dt < 1e-6 and dr < 1e-4
+        # The written sequence carries gravity (gravity.txt): world -z seen from the camera, as the frame had it.
+        np.testing.assert_allclose(g.gravity_cam, f.gravity_cam, atol=1e-8)
+        np.testing.assert_allclose(g.gravity_cam, f.T_world_cam[:3, :3].T @ [0.0, 0.0, -1.0], atol=1e-8)
+    assert seq.has_gravity.all() and not seq.notes
 
 
 def test_cli_writes_sequence(tmp_path):
