@@ -11,7 +11,7 @@ import numpy as np
 from reloc.camera import DepthFrame, gravity_from_camera_y
 from reloc.extraction._workspace import Workspace
 from reloc.extraction.assemble import assemble_plane_set
-from reloc.extraction.backproject import depth_to_keyed_points
+from reloc.extraction.backproject import depth_to_keyed_points, depth_to_points
 from reloc.extraction.fit import check_points
 from reloc.extraction.merge import MergedPlanes, merge_voxel_planes, refine_merged_planes
 from reloc.extraction.params import ExtractionParams
@@ -22,6 +22,8 @@ from reloc.planeset import PlaneSet
 __all__ = ["ExtractionResult", "PlaneExtractor", "extract_planes", "extract_planes_from_points", "STAGES"]
 
 STAGES = ("backproject", "voxelize", "fit", "weight", "merge", "refine", "finalize")
+# Largest dense key table of a frame's viewing frustum (int32 cells, 256 MB); beyond it the occupied cells are hashed.
+MAX_FRUSTUM_CELLS = 1 << 26
 
 
 @dataclass(frozen=True)
@@ -60,14 +62,24 @@ class PlaneExtractor:
             self._box = frustum_box(frame.intrinsics, min_depth_m=p.min_depth_m, max_depth_m=p.max_depth_m,
                                     voxel_size_m=p.voxel_size_m)
             self._box_key = key
-        pts, pix, point_key, cellcount = depth_to_keyed_points(
-            frame.depth_m, frame.intrinsics, self._box, voxel_size_m=p.voxel_size_m, min_depth_m=p.min_depth_m,
-            max_depth_m=p.max_depth_m, pixel_stride=p.pixel_stride, workspace=self.workspace,
-        )
-        timings = {"backproject": (time.perf_counter() - t0) * 1e3}
-        t = time.perf_counter()
-        grid = voxelize_keyed(pts, point_key, cellcount, self._box, voxel_size_m=p.voxel_size_m,
-                              workspace=self.workspace)
+        if int(np.prod(self._box[3:])) > MAX_FRUSTUM_CELLS:
+            # Depth limits far beyond the voxel size: the frustum's dense key table would not fit in memory, so
+            # the points are voxelized on their own (a hash of the occupied cells when their box is large).
+            pts, pix = depth_to_points(frame.depth_m, frame.intrinsics, min_depth_m=p.min_depth_m,
+                                       max_depth_m=p.max_depth_m, pixel_stride=p.pixel_stride,
+                                       workspace=self.workspace)
+            timings = {"backproject": (time.perf_counter() - t0) * 1e3}
+            t = time.perf_counter()
+            grid = voxelize(pts, voxel_size_m=p.voxel_size_m, workspace=self.workspace)
+        else:
+            pts, pix, point_key, cellcount = depth_to_keyed_points(
+                frame.depth_m, frame.intrinsics, self._box, voxel_size_m=p.voxel_size_m, min_depth_m=p.min_depth_m,
+                max_depth_m=p.max_depth_m, pixel_stride=p.pixel_stride, workspace=self.workspace,
+            )
+            timings = {"backproject": (time.perf_counter() - t0) * 1e3}
+            t = time.perf_counter()
+            grid = voxelize_keyed(pts, point_key, cellcount, self._box, voxel_size_m=p.voxel_size_m,
+                                  workspace=self.workspace)
         timings["voxelize"] = (time.perf_counter() - t) * 1e3
         return self._from_grid(grid, pts, pix, frame.intrinsics.shape, self.gravity_of(frame), timings, t0,
                                ordered=True)
