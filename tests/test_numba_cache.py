@@ -1,0 +1,63 @@
+"""The numba cache directory: NUMBA_CACHE_DIR wins, a read-only install falls back to the user cache directory, and
+a cold cache is announced in one line (and only then)."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+from reloc import _numba
+
+
+def test_numba_cache_dir_is_honoured(monkeypatch, tmp_path):
+    monkeypatch.setenv("NUMBA_CACHE_DIR", str(tmp_path / "mine"))
+    assert _numba.configure_cache_dir() == str(tmp_path / "mine")
+    assert _numba.cache_location() == str(tmp_path / "mine")
+
+
+def test_read_only_package_falls_back_to_the_user_cache(monkeypatch, tmp_path):
+    monkeypatch.delenv("NUMBA_CACHE_DIR", raising=False)
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "xdg"))
+    real_access = os.access
+    package = str(_numba._PACKAGE_ROOT / "reloc")
+    monkeypatch.setattr(_numba.os, "access",
+                        lambda p, mode: False if str(p) == package else real_access(p, mode))
+    chosen = _numba.configure_cache_dir()
+    expected = tmp_path / "xdg" / "voxelplane-reloc" / "numba"
+    assert chosen == str(expected) and expected.is_dir()
+    assert os.environ["NUMBA_CACHE_DIR"] == str(expected)  # set before numba reads it
+
+
+def test_writable_package_keeps_numbas_default(monkeypatch):
+    monkeypatch.delenv("NUMBA_CACHE_DIR", raising=False)
+    monkeypatch.setattr(_numba.os, "access", lambda p, mode: True)
+    assert _numba.configure_cache_dir() is None
+    assert "NUMBA_CACHE_DIR" not in os.environ
+
+
+def test_cold_cache_prints_one_line_and_warm_prints_none(monkeypatch, capsys):
+    monkeypatch.setattr(_numba, "_WARMUPS", [])
+    monkeypatch.setattr(_numba, "_KERNELS", [object(), object(), object()])
+    monkeypatch.setattr(_numba, "_has_cache_index", lambda disp: disp is _numba._KERNELS[0])
+    info = _numba.warm_up()
+    err = capsys.readouterr().err
+    assert info["kernels"] == 3 and info["cold"] == 2
+    assert err.count("\n") == 1 and err.startswith("numba: compiling 2 kernels on a cold cache")
+    monkeypatch.setattr(_numba, "_has_cache_index", lambda disp: True)
+    assert _numba.warm_up()["cold"] == 0
+    assert capsys.readouterr().err == ""
+    monkeypatch.setattr(_numba, "_has_cache_index", lambda disp: False)
+    _numba.warm_up(quiet=True)
+    assert capsys.readouterr().err == ""
+
+
+def test_a_fresh_process_uses_the_directory_it_is_given(tmp_path):
+    """Set before import, NUMBA_CACHE_DIR is where numba itself puts the cache."""
+    env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path / "cache"))
+    out = subprocess.run(
+        [sys.executable, "-c", "import reloc._numba, numba.core.config as c; print(c.CACHE_DIR)"],
+        env=env, capture_output=True, text=True, timeout=120, check=True,
+    ).stdout.strip()
+    assert Path(out) == tmp_path / "cache"
