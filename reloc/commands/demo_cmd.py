@@ -18,8 +18,12 @@ import click
               help="YAML config (defaults otherwise).")
 @click.option("--json", "json_path", type=click.Path(dir_okay=False), default=None,
               help="Also write the figures (and every query's outcome) as JSON.")
+@click.option("--plots", "plots_dir", type=click.Path(file_okay=False), default=None,
+              help="Also save pictures into this directory: a frame's planes, the map with a relocalized submap, "
+                   "all queries on the map, precision/recall bars, latency histograms (needs pip install -e "
+                   "'.[viz]').")
 @click.option("--quiet", is_flag=True, help="No progress bar.")
-def demo(scene, negative_scene, source, queries, negatives, seed, config_path, json_path, quiet):
+def demo(scene, negative_scene, source, queries, negatives, seed, config_path, json_path, plots_dir, quiet):
     """Simulate a scene, build its map, relocalize positive and negative queries, print the results table.
 
     Prints precision, recall, median pose errors and per-stage latency; the first run compiles the numba kernels
@@ -33,6 +37,13 @@ def demo(scene, negative_scene, source, queries, negatives, seed, config_path, j
     from reloc.config import load_config
     from reloc.demo import DemoSpec, format_demo, run_demo
 
+    if plots_dir:  # matplotlib checked before the long run, not after it
+        from reloc.viz._mpl import require_matplotlib
+
+        try:
+            require_matplotlib()
+        except ImportError as exc:
+            raise click.ClickException(str(exc)) from None
     cfg = load_config(config_path)
     spec = DemoSpec(scene=scene, negative_scene=negative_scene, plane_source=source, queries_per_kind=queries,
                     negatives=negatives, seed=seed)
@@ -47,10 +58,16 @@ def demo(scene, negative_scene, source, queries, negatives, seed, config_path, j
         bar.set_postfix_str(f"{step} {done}/{total}")
 
     try:
-        result = run_demo(spec, cfg, progress=progress)
+        kept: dict = {}
+        result = run_demo(spec, cfg, progress=progress, keep=kept if plots_dir else None)
     finally:
         bar.close()
     click.echo(format_demo(result))
     if json_path:
         atomic_write_text(json_path, json.dumps(result, indent=1) + "\n")
         click.echo(f"wrote {json_path}")
+    if plots_dir:
+        from reloc.viz.demo_plots import save_demo_plots
+
+        for path in save_demo_plots(result, kept, plots_dir):
+            click.echo(f"wrote {path}")
