@@ -22,8 +22,12 @@ import click
               help="Also save pictures into this directory: a frame's planes, the map with a relocalized submap, "
                    "all queries on the map, precision/recall bars, latency histograms (needs pip install -e "
                    "'.[viz]').")
+@click.option("--rerun", "rerun_path", type=click.Path(dir_okay=False), default=None,
+              help="Also write a Rerun recording (.rrd: the map, a frame with its planes, each query's submap at its "
+                   "estimated pose and the truth); needs pip install rerun-sdk.")
 @click.option("--quiet", is_flag=True, help="No progress bar.")
-def demo(scene, negative_scene, source, queries, negatives, seed, config_path, json_path, plots_dir, quiet):
+def demo(scene, negative_scene, source, queries, negatives, seed, config_path, json_path, plots_dir, rerun_path,
+         quiet):
     """Simulate a scene, build its map, relocalize positive and negative queries, print the results table.
 
     Prints precision, recall, median pose errors and per-stage latency; the first run compiles the numba kernels
@@ -44,6 +48,15 @@ def demo(scene, negative_scene, source, queries, negatives, seed, config_path, j
             require_matplotlib()
         except ImportError as exc:
             raise click.ClickException(str(exc)) from None
+    if rerun_path:
+        from reloc.viz.rerun_log import require_rerun
+
+        if not rerun_path.endswith(".rrd"):
+            raise click.BadParameter(f"expected a .rrd file name, got {rerun_path!r}", param_hint="--rerun")
+        try:
+            require_rerun()
+        except ImportError as exc:
+            raise click.ClickException(str(exc)) from None
     cfg = load_config(config_path)
     spec = DemoSpec(scene=scene, negative_scene=negative_scene, plane_source=source, queries_per_kind=queries,
                     negatives=negatives, seed=seed)
@@ -59,7 +72,7 @@ def demo(scene, negative_scene, source, queries, negatives, seed, config_path, j
 
     try:
         kept: dict = {}
-        result = run_demo(spec, cfg, progress=progress, keep=kept if plots_dir else None)
+        result = run_demo(spec, cfg, progress=progress, keep=kept if (plots_dir or rerun_path) else None)
     finally:
         bar.close()
     click.echo(format_demo(result))
@@ -71,3 +84,7 @@ def demo(scene, negative_scene, source, queries, negatives, seed, config_path, j
 
         for path in save_demo_plots(result, kept, plots_dir):
             click.echo(f"wrote {path}")
+    if rerun_path:
+        from reloc.viz.demo_plots import save_demo_rerun
+
+        click.echo(f"wrote {save_demo_rerun(result, kept, rerun_path)} (open it with: rerun {rerun_path})")

@@ -7,6 +7,7 @@
 - ``reloc_results.png``: every positive query on the map, coloured by outcome, with its ground truth;
 - ``eval_bars.png``: precision and recall by query kind, with the outcome counts;
 - ``latency_hist.png``: per-stage latency histograms of the demo's relocalizations.
+:func:`save_demo_rerun` writes the same as a Rerun recording (``reloc demo --rerun FILE.rrd``).
 """
 
 from __future__ import annotations
@@ -15,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["save_demo_plots"]
+__all__ = ["save_demo_plots", "save_demo_rerun"]
 
 
 def _frame_with_planes(scene, spec, plane_source):
@@ -80,3 +81,20 @@ def save_demo_plots(result: dict, kept: dict, out_dir: str | Path) -> list[Path]
     written.append(plot_latency(lat, out_dir / "latency_hist.png",
                                 title=f"demo: latency per stage over {len(outcomes)} queries"))
     return written
+
+
+def save_demo_rerun(result: dict, kept: dict, path: str | Path) -> Path:
+    """Write a Rerun recording (``.rrd``) of the demo: the map, a frame with its planes, and each positive query's
+    submap at its estimated pose beside the ground truth (timeline ``query``). Needs ``pip install rerun-sdk``."""
+    from reloc.viz.rerun_log import log_frame, log_map, log_query, open_recording
+
+    rec = open_recording(path)
+    log_map(rec, kept["plane_map"].planes)
+    frame, planes = _frame_with_planes(kept["scene"], result["spec"], kept["plane_source"])
+    log_frame(rec, frame, planes)
+    for i, (q, o) in enumerate(zip(kept["queries"], result["outcomes"])):
+        if o["positive"]:
+            res = kept["relocalizer"].locate(q.submap)
+            log_query(rec, i, q.name, q.submap, res.status, res.T_map_cam, q.T_world_cam)
+    rec.flush()
+    return Path(path)
