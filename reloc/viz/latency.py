@@ -78,7 +78,7 @@ def _check_stats(stats, where: str) -> dict:
     return stats
 
 
-def latency_data(data) -> LatencyData:
+def latency_data(data, *, table8: bool = False) -> LatencyData:
     """Stage timings from the JSON of a profile, a live-loop summary, locate results, reloc eval or reloc demo.
 
     - profile (``reloc profile --json``): ``{"stages": {name: stats}, "samples_ms": {name: [ms...]},
@@ -86,8 +86,17 @@ def latency_data(data) -> LatencyData:
     - live-loop summary (``reloc run --summary``): ``latency_ms`` and ``end_to_end_ms`` (percentiles only).
     - ``reloc locate`` results (a list of records), ``reloc demo --json`` or ``reloc eval --json`` (``outcomes``):
       the per-query ``timings_ms`` become samples.
-    Raises ValueError saying what was expected otherwise.
+    ``table8``: the profile's grouped rows in the shape of the paper's Table 8 (``table8``, ``table8_samples_ms``)
+    instead of its stages. Raises ValueError saying what was expected otherwise.
     """
+    if table8:
+        if not isinstance(data, dict) or not isinstance(data.get("table8"), dict):
+            raise ValueError("table8: expected a profile written by reloc profile --json (with table8), got "
+                             + (f"keys {sorted(data)[:10]}" if isinstance(data, dict) else type(data).__name__))
+        lat = latency_data({"stages": data["table8"], "samples_ms": data.get("table8_samples_ms"),
+                            "compile_s": data.get("compile_s")})
+        lat.source = "profile, the rows of Table 8"
+        return lat
     if isinstance(data, list):
         return _from_records(data, "results")
     if not isinstance(data, dict):
