@@ -46,7 +46,19 @@ def cli() -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """Entry point of the console script; errors in user input become one readable line and exit code 2."""
+    """Entry point of the console script; errors in user input become one readable line and exit code 2.
+
+    SIGTERM stops a command as Ctrl-C does (files being written are finished or removed, never left half-written);
+    a command may install its own handlers (``reloc run`` does).
+    """
+    import signal
+
+    previous = None
+    try:
+        if signal.getsignal(signal.SIGTERM) is signal.SIG_DFL:
+            previous = signal.signal(signal.SIGTERM, _terminate)
+    except ValueError:  # not the main thread: leave signals alone
+        pass
     try:
         cli.main(args=argv, prog_name="reloc", standalone_mode=False)
     except click.exceptions.Abort:
@@ -63,7 +75,14 @@ def main(argv: list[str] | None = None) -> int:
     except OSError as exc:  # the system refused (a full disk, a vanished device): one line, not a traceback
         click.echo(f"error: {exc}", err=True)
         return 1
+    finally:
+        if previous is not None:
+            signal.signal(signal.SIGTERM, previous)
     return 0
+
+
+def _terminate(signum, frame):
+    raise KeyboardInterrupt(f"signal {signum}")
 
 
 if __name__ == "__main__":
