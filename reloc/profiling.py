@@ -150,6 +150,12 @@ class Profiler:
         with self._lock:
             return list(self._stats)
 
+    def snapshot(self) -> dict[str, tuple[int, int, np.ndarray]]:
+        """Per stage ``(count, total_ns, samples_ns)``: a consistent copy of every stage (the latest ``window``
+        durations, oldest first only until the ring wraps), e.g. for histograms or sums of stages."""
+        with self._lock:
+            return {k: (v.count, v.total_ns, v.samples_ns()) for k, v in self._stats.items()}
+
     def summary(self, total_stage: str | None = None) -> dict:
         """Per stage: count, mean/p50/p95/p99/max in ms and share of the total.
 

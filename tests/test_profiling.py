@@ -101,3 +101,12 @@ def test_add_timings_places_parts_inside_their_parent():
     assert ev["reloc.decide.density"]["ts"] == pytest.approx(ev["reloc.decide"]["ts"])
     assert ev["reloc.decide.weights"]["ts"] == pytest.approx(ev["reloc.decide"]["ts"] + 500.0)
     assert ev["reloc.decide.weights"]["dur"] == pytest.approx(250.0)
+
+
+def test_snapshot_gives_counts_totals_and_the_windowed_samples():
+    prof = Profiler(window=4)
+    for i in range(1, 7):
+        prof.record("a", 0, i)
+    count, total_ns, samples = prof.snapshot()["a"]
+    assert count == 6 and total_ns == 21
+    assert sorted(samples.tolist()) == [3, 4, 5, 6]  # the latest 4

@@ -157,8 +157,7 @@ def table8(profiler: Profiler, total_stage: str | None = "frame",
     pipeline per frame), or without it of the sum of ``denominator_stages``. ``other`` is the rest of that total
     (work between the stages: Python glue, result objects). Each row lists its ``stages`` and the ``paper_ms``.
     """
-    with profiler._lock:  # a consistent copy of every stage's samples
-        stats = {k: (v.count, v.total_ns, v.samples_ns()) for k, v in profiler._stats.items()}
+    stats = profiler.snapshot()
     if total_stage is not None and total_stage in stats:
         denom_ns = stats[total_stage][1]
     else:
@@ -210,8 +209,7 @@ def profile_report(profiler: Profiler, *, total_stage: str | None = "frame", **i
         denom = rows["total"]["total_ms"]
         for s in summary["stages"].values():
             s["share"] = s["total_ms"] / denom if denom > 0 else math.nan
-    with profiler._lock:
-        samples = {k: (v.samples_ns() / 1e6).round(5).tolist() for k, v in profiler._stats.items()}
+    samples = {k: (ns / 1e6).round(5).tolist() for k, (_, _, ns) in profiler.snapshot().items()}
     return {**info, "stages": summary["stages"], "table8": rows, "samples_ms": samples,
             "table8_samples_ms": {k: [round(x, 5) for x in v] for k, v in row_samples.items()},
             "compile_s": summary["compile_s"]}
