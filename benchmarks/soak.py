@@ -467,7 +467,8 @@ def main(argv=None) -> int:
         ["firmware requests sent/acked/failed/unanswered",
          f"{fw['requests_sent']}/{fw['requests_acked']}/{fw['requests_failed']}/{fw['requests_unanswered']}"],
         ["serial: unplugs, garbage bursts", f"{fw['unplugs']}, {fw['serial_faults_injected']['garbage_bursts']}"],
-        ["host link: connects/disconnects/open failures", f"{hb['connects']}/{hb['disconnects']}/{hb['open_failures']}"],
+        ["host link: connects/disconnects/open failures",
+         f"{hb['connects']}/{hb['disconnects']}/{hb['open_failures']}"],
         ["host decoder: good, bad (crc, framing, truncated)",
          f"{hb['frames_good']}, {hb['frames_bad']} ({hb['crc_errors']}, {hb['framing_errors']}, {hb['truncated']})"],
     ])

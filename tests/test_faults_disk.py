@@ -105,7 +105,8 @@ def test_saving_a_map_on_a_full_disk_keeps_the_previous_map(tmp_path, maps, monk
         save_map(path, new)
     monkeypatch.undo()
     # The error names the file and says it was not replaced.
-    assert err.value.errno in (errno.ENOSPC, errno.EIO) and str(path) in str(err.value) and "as it was" in str(err.value)
+    msg = str(err.value)
+    assert err.value.errno in (errno.ENOSPC, errno.EIO) and str(path) in msg and "as it was" in msg
     assert path.read_bytes() == before and _leftovers(tmp_path) == []
     back = load_map(path)
     assert len(back) == len(old) and np.array_equal(back.observations, old.observations)

@@ -23,7 +23,7 @@ def test_a_short_soak_with_frequent_faults_adds_up():
     assert f["with_planes"] + f["bad_total"] + f["dropped_by_queue"] == f["delivered"]
     assert injected["invalid"] > 0 and f["bad"].get("no_valid_depth", 0) <= injected["invalid"]
     assert injected["disconnects"] >= 2 and res["source_events"]["reconnects"] == injected["disconnects"]
-    assert injected["dropped"] > 0 and f["missing_from_source"] >= injected["dropped"] - 3  # (a gap needs a later frame)
+    assert injected["dropped"] > 0 and f["missing_from_source"] >= injected["dropped"] - 3  # (gaps need a later frame)
     rel = res["relocalizations"]
     assert rel["correct"] >= 1 and rel["false"] == 0 and rel["correct"] == rel["relocalized"]
     fw, host = res["firmware"], res["host_bridge"]
