@@ -7,7 +7,9 @@ import numpy as np
 from reloc.extraction import _kernels_fit as kf
 from reloc.extraction.params import ExtractionParams
 
-__all__ = ["fit_plane", "check_points"]
+__all__ = ["fit_plane", "check_points", "MAX_COORDINATE_M"]
+
+MAX_COORDINATE_M = 1e9
 
 
 def check_points(points: np.ndarray, name: str = "points", min_points: int = 0) -> np.ndarray:
@@ -21,6 +23,14 @@ def check_points(points: np.ndarray, name: str = "points", min_points: int = 0) 
     finite = np.isfinite(pts).all(axis=1)
     if not finite.all():
         pts = np.ascontiguousarray(pts[finite])
+    # Sums of squares of farther points overflow (a NaN plane) or lose all precision; those of nearer-than-tiny
+    # coordinates underflow to subnormals, which turn the eigen-solver's rotations into NaN.
+    if pts.size and np.abs(pts).max() > MAX_COORDINATE_M:
+        raise ValueError(f"{name}: coordinates up to {np.abs(pts).max():.3g} m, expected within +-{MAX_COORDINATE_M:g} m "
+                         "(are the points in metres?)")
+    tiny = np.abs(pts) < 1e-100
+    if tiny.any():
+        pts = np.where(tiny, 0.0, pts)
     if pts.shape[0] < min_points:
         raise ValueError(f"{name}: expected at least {min_points} finite points, got {pts.shape[0]}")
     return pts
@@ -69,6 +79,8 @@ def fit_plane(
         bool(p.noise_weights), bool(p.adaptive_weights), float(p.alpha), float(p.beta), p.irls_iterations > 0,
         float(p.irls_kernel_sigmas), int(p.ransac_hypotheses), int(p.seed), int(max_iterations), plane, cov,
     )
+    if not (np.all(np.isfinite(plane)) and np.all(np.isfinite(cov))):
+        raise ValueError(f"points: no finite plane fits these {len(pts)} points (degenerate or badly scaled)")
     normal = plane[:3].copy()
     # Back to the input frame: n . (p - o) + d_o = 0  ->  d = d_o - n . o; (n, d) = J (n, d_o), J = [[I, 0], [-o^T, 1]].
     d = float(plane[3] - normal @ origin)
