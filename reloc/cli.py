@@ -21,6 +21,7 @@ COMMANDS: dict[str, str] = {
     "devices": "drivers.commands:devices_cmd",
     "firmware-sim": "firmware_bridge.cli:firmware_sim",
     "planes": "reloc.extraction.cli:planes",
+    "plot": "reloc.viz.cli:plot",
     "profile": "reloc.commands.profile_cmd:profile",
     "record": "drivers.commands:record_cmd",
     "run": "reloc.live.cli:run",
