@@ -17,6 +17,8 @@ plane never fix a pose), and a real view still relocalizes at its true pose when
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 from hypothesis import given
 from hypothesis import strategies as st
@@ -27,6 +29,7 @@ from reloc.extraction.fit import MAX_COORDINATE_M
 from reloc.extraction.pipeline import extract_planes_from_points
 from reloc.mapping import MapBuilder, MappingParams
 from reloc.matching import Relocalizer
+from reloc.matching.relocalizer import check_plane_set
 from reloc.transforms import check_transform, pose_error
 from test_fuzz_common import Target, fuzz_settings, outcome
 
@@ -175,6 +178,13 @@ def plane_sets(draw) -> tuple:
     junk = planes_from_points(pieces, np.array(normals).reshape(-1, 3), np.array(offsets), spacing=0.1, frame="cam",
                               gravity=gravity)
     T = None
+    if draw(st.integers(0, 5)) == 0 and len(junk):  # a corrupted field: must be refused, not matched
+        field = draw(st.sampled_from(["normals", "offsets", "centroids", "areas", "radii", "sample_points"]))
+        arr = getattr(junk, field).copy()
+        if arr.size:
+            arr.reshape(-1)[draw(st.integers(0, arr.size - 1))] = draw(st.sampled_from([np.nan, np.inf, -1.0, 3.0]))
+            junk = replace(junk, **{field: arr})
+        return junk, None
     if draw(st.booleans()):  # mixed into a real view of the room
         T = look_at((draw(st.floats(1.0, 5.0)), draw(st.floats(1.0, 4.0)), 1.2), (3.0, 2.5, 0.8))
         view = view_planes(ROOM, T)
@@ -183,8 +193,6 @@ def plane_sets(draw) -> tuple:
 
 
 def _concat(a, b):
-    from dataclasses import replace
-
     fields = ("normals", "offsets", "centroids", "counts", "radii", "areas", "covariances", "sums", "scatters")
     out = {f: np.concatenate([getattr(a, f), getattr(b, f)]) for f in fields}
     pts = np.concatenate([a.sample_points, b.sample_points])
@@ -192,7 +200,16 @@ def _concat(a, b):
     return replace(a, **out, sample_points=pts, sample_ptr=ptr, labels=None)
 
 
-def check_plane_set(planes, T_map_cam) -> None:
+def check_planes_case(planes, T_map_cam) -> None:
+    try:
+        check_plane_set(planes, "planes")
+    except ValueError:  # corrupted on purpose: relocalization must refuse it, naming it
+        try:
+            relocalizer().locate(planes)
+        except ValueError as exc:
+            assert "submap" in str(exc)
+            raise
+        raise AssertionError("a plane set with non-finite or invalid geometry was matched")
     # Map building: the plane set as three keyframes from nearby poses.
     builder = MapBuilder(MappingParams(min_observations=1, free_space_voxel_m=0.0))
     for x in (0.0, 0.3, 0.6):
@@ -220,7 +237,7 @@ def check_plane_set(planes, T_map_cam) -> None:
 
 
 def run_planes(case) -> str:
-    return outcome(lambda: check_plane_set(*case), names=None, timeout_s=60)
+    return outcome(lambda: check_planes_case(*case), names=None, timeout_s=60)
 
 
 RELOC_TARGET = Target("relocalizer", "plane sets into map building and matching", plane_sets(), run_planes)
@@ -254,3 +271,17 @@ def test_subnormal_coordinates_give_a_finite_plane():
     pts = np.array([-0.9, 1e-158, 6.4]) + t * np.array([0.97, -1e-159, -0.4])  # NaN plane before
     n, d, _ = fit_plane(pts)
     assert np.isfinite(n).all() and np.abs(pts @ n + d).max() < 1e-9
+
+
+def test_non_finite_or_invalid_plane_sets_are_refused_by_the_relocalizer():
+    # Matched before (an inf offset or a NaN sample relocalized; a NaN map normal silently lost a plane).
+    T = look_at((1.0, 1.0, 1.2), (3.0, 2.5, 0.8))
+    view = view_planes(ROOM, T)
+    for field, value in [("offsets", np.inf), ("sample_points", np.nan), ("normals", 3.0), ("areas", -1.0)]:
+        arr = getattr(view, field).copy()
+        arr.reshape(-1)[1] = value
+        assert outcome(lambda: relocalizer().locate(replace(view, **{field: arr})), names="submap") == "error"
+    room = scene_planes(ROOM)
+    normals = room.normals.copy()
+    normals[0] = np.nan
+    assert outcome(lambda: Relocalizer(replace(room, normals=normals)), names="plane_map") == "error"
