@@ -215,7 +215,7 @@ def plot_latency(
             if val > (lo if log else -1):
                 ax.axvline(val, color="black", ls=ls, lw=1.5, zorder=3)
         share = s.get("share")
-        share_txt = f", {100 * share:.0f}% of the stage time" if share is not None and math.isfinite(share) else ""
+        share_txt = f", share {100 * share:.0f}%" if share is not None and math.isfinite(share) else ""
         ax.set_title(f"{name}  (n={v.size}{share_txt})\n"
                      f"p50 {_fmt(p50)} | p95 {_fmt(p95)} | p99 {_fmt(p99)} | max {_fmt(vmax)} ms", fontsize=10,
                      loc="left")

@@ -36,6 +36,18 @@ STATUS_STYLE = {
 }
 
 
+_LABEL_OFFSETS = ((5, 5), (5, -13), (-24, 5), (-24, -13))
+
+
+def _free_offset(p: np.ndarray, labels: list, dots: list, per_point: float) -> tuple[int, int]:
+    """The label offset (points) whose label centre is farthest from the labels placed so far and the other dots."""
+    others = np.array(labels + [d for d in dots if np.hypot(*(d - p)) > 1e-9]).reshape(-1, 2)
+    if not len(others):
+        return _LABEL_OFFSETS[0]
+    best = max(_LABEL_OFFSETS, key=lambda o: np.hypot(*(others - (p + per_point * (np.asarray(o) + (8, 3)))).T).min())
+    return best
+
+
 def read_results(path: str | os.PathLike) -> list[dict]:
     """The records of a ``reloc locate`` results file (JSON Lines). Raises ValueError naming the file, the line and
     the problem for anything else."""
@@ -127,7 +139,11 @@ def plot_reloc_results(
     tick = 0.035 * float(max(np.ptp(pts, axis=0).max(), 1.0))
 
     counts = {k: 0 for k in STATUS_STYLE}
-    errors = []
+    errors, placed = [], []
+    dots = [basis @ (r["T_map_cam"] if k in ("right", "wrong", "relocalized") else truth[int(r["frame"])])[:3, 3]
+            for r, (k, _) in zip(results, result_kinds(results, truth))
+            if k in ("right", "wrong", "relocalized") or int(r["frame"]) in truth]
+    per_point = float(max(np.ptp(pts, axis=0).max(), 1.0)) / (0.65 * min(width_px, height_px) * 0.72)  # m per pt
     label = len(results) <= label_frames
     for r, (kind, err) in zip(results, result_kinds(results, truth)):
         frame = int(r["frame"])
@@ -151,7 +167,11 @@ def plot_reloc_results(
         ax.plot(p[0], p[1], marker, ms=7, color=color, mec="white", mew=0.8, zorder=6)
         _heading_tick(ax, at, basis, tick, color, lw=2.2, zorder=6)
         if label:
-            ax.annotate(str(frame), (p[0], p[1]), xytext=(5, 5), textcoords="offset points", fontsize=8,
+            # Queries close together: later labels go to another side of their dot instead of on top.
+            offset = _free_offset(p, placed, dots, per_point)
+            placed.append(p + per_point * (np.asarray(offset) + (8, 3)))
+            ax.annotate(str(frame), (p[0], p[1]), xytext=offset,
+                        textcoords="offset points", fontsize=8,
                         color="black", zorder=7,
                         bbox=dict(boxstyle="round,pad=0.1", fc="white", ec="none", alpha=0.75))
 
