@@ -143,10 +143,13 @@ class DepthFrame:
                 f"DepthFrame.depth_m: shape {depth.shape} does not match intrinsics (height, width) = "
                 f"{self.intrinsics.shape}"
             )
+        if depth.dtype.kind not in "uif":  # no booleans, text, dates, records or objects read as depths
+            raise ValueError(f"DepthFrame.depth_m: expected numbers (metres), got dtype {depth.dtype}")
         if depth.dtype != np.float32:
             object.__setattr__(self, "depth_m", depth.astype(np.float32))
-        if not isinstance(self.stamp_ns, (int, np.integer)):
-            raise ValueError(f"DepthFrame.stamp_ns: expected an integer nanosecond timestamp, got {self.stamp_ns!r}")
+        if (isinstance(self.stamp_ns, bool) or not isinstance(self.stamp_ns, (int, np.integer))
+                or not -(2**63) <= int(self.stamp_ns) < 2**63):
+            raise ValueError(f"DepthFrame.stamp_ns: expected an integer nanosecond timestamp (int64), got {self.stamp_ns!r}")
         object.__setattr__(self, "stamp_ns", int(self.stamp_ns))
         if self.T_world_cam is not None:
             object.__setattr__(self, "T_world_cam", check_transform(self.T_world_cam, "DepthFrame.T_world_cam"))

@@ -149,3 +149,15 @@ def test_far_depth_limit_does_not_allocate_the_whole_frustum():
     assert len(far) == 1
     np.testing.assert_allclose(far.normals[0], n, atol=1e-6)
     assert abs(far.offsets[0] - 3.0) < 1e-4
+
+
+def test_depth_images_that_are_not_numbers_and_bad_stamps_are_value_errors():
+    # A record array escaped as TypeError; booleans, text, dates and objects became "depths" silently before.
+    for arr in (np.zeros((H, W), "i4,f4"), np.ones((H, W), bool), np.full((H, W), "1.5"),
+                np.ones((H, W), "M8[s]"), np.full((H, W), None, object), np.ones((H, W), np.complex64)):
+        assert outcome(lambda: DepthFrame(depth_m=arr, intrinsics=K, stamp_ns=0), names="depth_m") == "error"
+    for stamp in (True, 2**70, 1.5):
+        assert outcome(lambda: DepthFrame(depth_m=np.ones((H, W), np.float32), intrinsics=K, stamp_ns=stamp),
+                       names="stamp_ns") == "error"
+    for arr in (np.ones((H, W), np.uint16), np.ones((H, W), np.float64)):  # numbers of any width are depths
+        assert DepthFrame(depth_m=arr, intrinsics=K, stamp_ns=0).depth_m.dtype == np.float32
