@@ -230,3 +230,12 @@ def test_zero_or_overflowing_gravity_is_refused():
     for g in ([0.0, 0.0, 0.0], [1e300, 1e300, 0.0]):  # a NaN gravity in the loaded map before
         assert run((_with(plane_gravity=np.array(g)), None)) == "error"
     assert run((_with(plane_gravity=np.full(3, np.nan)), None)) == "ok"  # NaN: a map without gravity
+
+
+def test_non_finite_or_negative_plane_sizes_are_refused():
+    # A NaN area loaded before; the relocalizer then refused the map with a ValueError that named no file.
+    for name, value in [("plane_areas", np.nan), ("plane_radii", np.inf), ("plane_areas", -1.0),
+                        ("plane_centroids", np.nan), ("plane_counts", -5)]:
+        arr = ENTRIES[name].copy()
+        arr.reshape(-1)[0] = value
+        assert run((_with(**{name: arr}), None)) == "error", name
