@@ -29,7 +29,8 @@ from test_fuzz_common import Target, fuzz_settings, outcome
 def _valid_map_bytes() -> bytes:
     planes = scene_planes(furnished_room("office"), spacing=0.25)
     keys = np.arange(0, 4000, 7, dtype=np.int64)
-    pm = PlaneMap(planes, np.full(len(planes), 3), {"source": "fuzz"}, free_keys=keys, free_voxel_m=0.15)
+    meta = {"source": "fuzz", "created_utc": "2026-01-01T00:00:00+00:00"}  # fixed: the same bytes on every run
+    pm = PlaneMap(planes, np.full(len(planes), 3), meta, free_keys=keys, free_voxel_m=0.15)
     with tempfile.TemporaryDirectory() as tmp:
         path = Path(tmp) / "m.npz"
         save_map(path, pm)
