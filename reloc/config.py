@@ -107,7 +107,12 @@ class ExtractionConfig(_Section):
     voxel_fit_max_points: int = Field(
         256, ge=3, description="Voxels with more points are refit from an even subsample (weights scaled up)."
     )
-    adaptive_weights: bool = Field(True, description="Eq. 2-3 position weights (off = the paper's VR-NE).")
+    adaptive_weights: bool = Field(
+        True,
+        description="Eq. 2-3 position weights in the per-voxel refit (off = the paper's VR-NE). On: on whole frames "
+        "they lower the tail errors (benchmarks/extraction_accuracy.py protocol 2); on single planes (protocol 1) "
+        "they do not help.",
+    )
     alpha: float = Field(
         0.5, ge=0, description="Eq. 2: slope of the square model 1 - alpha (r/r_max)^2 inside sigma (r normalised)."
     )

@@ -69,11 +69,12 @@ def _candidates(v, voxel_key, box, dense, cellmap, tkeys, tvals, plane_of_voxel,
     return nc
 
 
-@njit(error_model="numpy")
+@njit(fastmath={"reassoc", "contract"}, error_model="numpy")
 def _subsample_voxel(sorted_pts, point_bits, step, by_order, a, b, q, planes, band, power, coeff, ray_mode,
-                     use_noise, refs, acc_w, acc_s, acc_S, acc_n, acc_sum):
+                     use_noise, refs, acc_w, acc_s, acc_S, acc_n, acc_sum, scratch):
     """The refit sums of :func:`_single_plane_voxel` from about 1 in ``step`` points only (every ``step``-th in
-    order with ``by_order``, else by the coordinate hash); assigns nothing."""
+    order with ``by_order``, else by the coordinate hash); assigns nothing. As there, the distances first (into
+    ``scratch`` (3, >= b - a): point index, ``u``, ``g``), then branch-free sums that vectorise."""
     nx = planes[q, 0]
     ny = planes[q, 1]
     nz = planes[q, 2]
@@ -83,8 +84,7 @@ def _subsample_voxel(sorted_pts, point_bits, step, by_order, a, b, q, planes, ba
     rx = refs[q, 0]
     ry = refs[q, 1]
     rz = refs[q, 2]
-    W = s0 = s1 = s2 = s3 = s4 = s5 = s6 = s7 = s8 = 0.0
-    c0 = c1 = c2 = cn = 0.0
+    k = 0
     for j in range(a, b, step if by_order else 1):
         if not by_order and not _keep(point_bits, j, step):
             continue
@@ -97,12 +97,24 @@ def _subsample_voxel(sorted_pts, point_bits, step, by_order, a, b, q, planes, ba
         an = abs(npd)
         lo = MIN_INCIDENCE * zz
         den = (an if an > lo else lo) if ray_mode else zz
-        u = abs(npd + d) * g / den
+        scratch[0, k] = j
+        scratch[1, k] = abs(npd + d) * g / den
+        scratch[2, k] = g
+        k += 1
+    W = s0 = s1 = s2 = s3 = s4 = s5 = s6 = s7 = s8 = 0.0
+    c0 = c1 = c2 = cn = 0.0
+    for i in range(k):
+        j = int(scratch[0, i])
+        px = np.float64(sorted_pts[j, 0])
+        py = np.float64(sorted_pts[j, 1])
+        pz = np.float64(sorted_pts[j, 2])
+        u = scratch[1, i]
         t = 1.0 - u * u * inv_b2
-        if t <= 0.0:
-            continue
+        t = t if t > 0.0 else 0.0
         w = t * t
         if use_noise:
+            zz = pz if pz > MIN_DEPTH else MIN_DEPTH
+            g = scratch[2, i]
             w *= g * g if ray_mode else g * g / (zz * zz)
         x = px - rx
         y = py - ry
@@ -117,10 +129,11 @@ def _subsample_voxel(sorted_pts, point_bits, step, by_order, a, b, q, planes, ba
         s6 += w * y * y
         s7 += w * y * z
         s8 += w * z * z
-        cn += 1.0
-        c0 += px
-        c1 += py
-        c2 += pz
+        f = 1.0 if t > 0.0 else 0.0
+        cn += f
+        c0 += f * px
+        c1 += f * py
+        c2 += f * pz
     acc_w[q] += W
     acc_s[q, 0] += s0
     acc_s[q, 1] += s1
@@ -161,6 +174,7 @@ def _single_plane_voxel(sorted_pts, a, b, q, planes, band, power, coeff, ray_mod
         den = (an if an > lo else lo) if ray_mode else zz
         u = abs(npd + d) * g / den
         scratch[0, j - a] = u
+        scratch[1, j - a] = g
     for j in range(a, b):
         inside = scratch[0, j - a] <= bq
         n_in += 1 if inside else 0
@@ -184,7 +198,7 @@ def _single_plane_voxel(sorted_pts, a, b, q, planes, band, power, coeff, ray_mod
         w = t * t
         if use_noise:
             zz = pz if pz > MIN_DEPTH else MIN_DEPTH
-            g = zz / _sigma_z(zz, power, coeff)
+            g = scratch[1, j - a]
             w *= g * g if ray_mode else g * g / (zz * zz)
         x = px - rx
         y = py - ry
@@ -290,8 +304,9 @@ def _multi_plane_voxel(sorted_pts, a, b, cand, nc, planes, band, power, coeff, r
         else:
             point_plane[j] = -1
         scratch[0, j - a] = best_u
-        scratch[1, j - a] = best
-        scratch[2, j - a] = 1.0 if amb else 0.0
+        # The nearest candidate, shifted past the candidates for a corner point; and g for the weight.
+        scratch[1, j - a] = best + (MAX_CANDIDATES + 1 if amb else 0)
+        scratch[2, j - a] = g
     if not accumulate:
         return n_in
     for k in range(nc):
@@ -325,14 +340,17 @@ def _multi_plane_voxel(sorted_pts, a, b, cand, nc, planes, band, power, coeff, r
 @njit(fastmath={"reassoc", "contract"}, error_model="numpy")
 def _masked_sums(sorted_pts, a, b, k, scratch, inv_b2, rx, ry, rz, power, coeff, ray_mode, use_noise):
     """Refit and support sums of the points of a voxel whose nearest candidate is ``k`` (see
-    :func:`_multi_plane_voxel`); corner points count for the support, not for the refit."""
+    :func:`_multi_plane_voxel`: ``scratch`` rows ``u``, the candidate (``+ MAX_CANDIDATES + 1`` at a corner) and
+    ``g``); corner points count for the support, not for the refit."""
     W = s0 = s1 = s2 = s3 = s4 = s5 = s6 = s7 = s8 = 0.0
     c0 = c1 = c2 = cn = 0.0
     h0 = h1 = h2 = h3 = h4 = h5 = h6 = h7 = h8 = h9 = 0.0
     kf = np.float64(k)
+    kc = np.float64(k + MAX_CANDIDATES + 1)
     for j in range(a, b):
-        mine = 1.0 if scratch[1, j - a] == kf else 0.0
-        fit = mine * (1.0 - scratch[2, j - a])
+        code = scratch[1, j - a]
+        fit = 1.0 if code == kf else 0.0
+        mine = fit + (1.0 if code == kc else 0.0)
         px = np.float64(sorted_pts[j, 0])
         py = np.float64(sorted_pts[j, 1])
         pz = np.float64(sorted_pts[j, 2])
@@ -343,7 +361,7 @@ def _masked_sums(sorted_pts, a, b, k, scratch, inv_b2, rx, ry, rz, power, coeff,
         w = t * t * fit
         if use_noise:
             zz = pz if pz > MIN_DEPTH else MIN_DEPTH
-            g = zz / _sigma_z(zz, power, coeff)
+            g = scratch[2, j - a]
             w *= g * g if ray_mode else g * g / (zz * zz)
         x = px - rx
         y = py - ry
@@ -468,7 +486,7 @@ def assign_points(sorted_pts, point_bits, step, by_order, voxel_start, nv, voxel
         if nc == 1:
             if step > 1:
                 _subsample_voxel(sorted_pts, point_bits, step, by_order, a, b, cand[0], planes, band, power, coeff,
-                                 ray_mode, use_noise, refs, acc_w, acc_s, acc_S, acc_n, acc_sum)
+                                 ray_mode, use_noise, refs, acc_w, acc_s, acc_S, acc_n, acc_sum, scratch)
                 continue
             n_assigned += _single_plane_voxel(sorted_pts, a, b, cand[0], planes, band, power, coeff, ray_mode,
                                               point_plane, accumulate, use_noise, refs, acc_w, acc_s, acc_S, acc_n,
@@ -705,33 +723,53 @@ def plane_extent(sorted_pts, point_plane, m, centroids, tb, area_cell, area_grid
         labels[:] = -1
     inv_a = 1.0 / area_cell
     inv_s = 1.0 / sample_cell
+    # The points come voxel by voxel, so a plane's points come in runs: its constants are loaded once per run and
+    # its largest squared distance kept in a register.
+    last = -1
+    cx = cy = cz = t0 = t1 = t2 = t3 = t4 = t5 = 0.0
+    a0 = a1 = s0 = s1 = 0.0
+    an = av = sn = sv = ao = so = 0
+    r2 = 0.0
+    q = -1
     for j in range(m):
         p = point_plane[j]
         if p < 0:
             continue
+        if p != last:
+            if last >= 0:
+                radii[last] = max(radii[last], r2)
+            last = p
+            r2 = 0.0
+            cx, cy, cz = centroids[p, 0], centroids[p, 1], centroids[p, 2]
+            t0, t1, t2, t3, t4, t5 = tb[p, 0], tb[p, 1], tb[p, 2], tb[p, 3], tb[p, 4], tb[p, 5]
+            a0, a1 = np.float64(area_grid[p, 0]), np.float64(area_grid[p, 1])
+            an, av, ao = area_grid[p, 2], area_grid[p, 3], area_off[p]
+            s0, s1 = np.float64(sample_grid[p, 0]), np.float64(sample_grid[p, 1])
+            sn, sv, so = sample_grid[p, 2], sample_grid[p, 3], sample_off[p]
+            q = remap[p]
         x = np.float64(sorted_pts[j, 0])
         y = np.float64(sorted_pts[j, 1])
         z = np.float64(sorted_pts[j, 2])
-        dx = x - centroids[p, 0]
-        dy = y - centroids[p, 1]
-        dz = z - centroids[p, 2]
-        radii[p] = max(radii[p], dx * dx + dy * dy + dz * dz)
-        u = tb[p, 0] * x + tb[p, 1] * y + tb[p, 2] * z
-        v = tb[p, 3] * x + tb[p, 4] * y + tb[p, 5] * z
+        dx = x - cx
+        dy = y - cy
+        dz = z - cz
+        dd = dx * dx + dy * dy + dz * dz
+        r2 = dd if dd > r2 else r2
+        u = t0 * x + t1 * y + t2 * z
+        v = t3 * x + t4 * y + t5 * z
         # Offsets from the grid corner are >= 0 inside the grid, where int() is floor().
-        iu = min(max(int(u * inv_a - area_grid[p, 0]), 0), area_grid[p, 2] - 1)
-        iv = min(max(int(v * inv_a - area_grid[p, 1]), 0), area_grid[p, 3] - 1)
-        occupied[area_off[p] + iu * area_grid[p, 3] + iv] = 1
-        iu = min(max(int(u * inv_s - sample_grid[p, 0]), 0), sample_grid[p, 2] - 1)
-        iv = min(max(int(v * inv_s - sample_grid[p, 1]), 0), sample_grid[p, 3] - 1)
-        c = sample_off[p] + iu * sample_grid[p, 3] + iv
+        iu = min(max(int(u * inv_a - a0), 0), an - 1)
+        iv = min(max(int(v * inv_a - a1), 0), av - 1)
+        occupied[ao + iu * av + iv] = 1
+        iu = min(max(int(u * inv_s - s0), 0), sn - 1)
+        iv = min(max(int(v * inv_s - s1), 0), sv - 1)
+        c = so + iu * sv + iv
         sample_acc[c, 0] += 1.0
         sample_acc[c, 1] += x
         sample_acc[c, 2] += y
         sample_acc[c, 3] += z
         if not with_labels:
             continue
-        q = remap[p]
         k = pix[sorted_src[j]]
         if stride == 1:
             labels[k] = q
@@ -743,6 +781,8 @@ def plane_extent(sorted_pts, point_plane, m, centroids, tb, area_cell, area_grid
         for vv in range(v0, min(v0 + stride, height)):
             for uu in range(u0, min(u0 + stride, width)):
                 labels[vv * width + uu] = q
+    if last >= 0:
+        radii[last] = max(radii[last], r2)
     for p in range(n_planes):
         radii[p] = math.sqrt(radii[p])
         cnt = 0
