@@ -240,3 +240,11 @@ def test_non_finite_or_negative_plane_sizes_are_refused():
         arr = ENTRIES[name].copy()
         arr.reshape(-1)[0] = value
         assert run((_with(**{name: arr}), None)) == "error", name
+
+
+def test_unknown_compression_method_is_a_map_file_error():
+    # A flipped bit in an entry's compression method: zipfile's NotImplementedError escaped before.
+    data = bytearray(_archive(dict(ENTRIES), compressed=False))
+    central = data.index(b"PK\x01\x02")
+    data[central + 10] = 99  # the first entry's method in the central directory: not one zipfile knows
+    assert run((bytes(data), None)) == "error"

@@ -29,6 +29,8 @@ __all__ = ["PlaneMap", "MapFileError", "save_map", "load_map", "MAP_FORMAT", "MA
 MAP_FORMAT = "voxelplane-reloc-map"
 MAP_FORMAT_VERSION = 1
 _PREFIX = "plane_"
+# What reading a damaged archive raises (a flipped bit in an entry's compression method: NotImplementedError).
+_UNREADABLE = (zipfile.BadZipFile, zlib.error, EOFError, OSError, ValueError, NotImplementedError)
 _INT_ENTRIES = {_PREFIX + "counts", _PREFIX + "sample_ptr", "observations", "free_keys"}
 _FLOAT_ENTRIES = {_PREFIX + name for name in ("normals", "offsets", "centroids", "radii", "areas", "covariances",
                                               "sums", "scatters", "sample_points", "gravity")}
@@ -140,7 +142,7 @@ def load_map(path) -> PlaneMap:
         raise MapFileError(path, f"not a map file: not an .npz (zip) archive (starts with {head!r})")
     try:
         npz = np.load(path, allow_pickle=False)
-    except (zipfile.BadZipFile, zlib.error, EOFError, OSError, ValueError) as exc:
+    except _UNREADABLE as exc:
         raise MapFileError(path, f"truncated or corrupted .npz archive ({exc})") from None
     if not isinstance(npz, np.lib.npyio.NpzFile):
         raise MapFileError(path, "not a map file: a single .npy array, expected an .npz archive")
@@ -149,7 +151,7 @@ def load_map(path) -> PlaneMap:
             raise MapFileError(path, f"not a map file: no 'meta' entry (entries: {', '.join(npz.files[:8])})")
         try:
             meta = json.loads(bytes(np.asarray(npz["meta"], dtype=np.uint8)).decode("utf-8"))
-        except (zipfile.BadZipFile, zlib.error, EOFError, OSError, ValueError, TypeError) as exc:
+        except (*_UNREADABLE, TypeError) as exc:
             raise MapFileError(path, f"truncated or corrupted: cannot read the metadata ({exc})") from None
         if not isinstance(meta, dict) or meta.get("format") != MAP_FORMAT:
             got = meta.get("format") if isinstance(meta, dict) else type(meta).__name__
@@ -162,7 +164,7 @@ def load_map(path) -> PlaneMap:
             )
         try:
             arrays = {name: npz[name] for name in npz.files if name != "meta"}
-        except (zipfile.BadZipFile, zlib.error, EOFError, OSError, ValueError) as exc:
+        except _UNREADABLE as exc:
             raise MapFileError(path, f"truncated or corrupted: cannot read its arrays ({exc})") from None
     # Numbers only, of the kind each array holds: no text parsed as numbers, no records, no complex values.
     for name, arr in arrays.items():
