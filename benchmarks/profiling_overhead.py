@@ -14,6 +14,7 @@ Two measurements:
    interleaved blocks repeated ``--repeats`` times (median of the blocks), plus ``add_timings_ms`` per stage and
    the ``with prof.stage(...)`` block. Times the number of records a frame makes, this is the profiler's cost per
    frame, and its share of the frame's median time.
+   The same with three threads recording into one profiler at once (the live loop's case: one lock, the GIL).
 2. Per frame, end to end: every frame through the pipeline once per variant, the variants rotated frame by frame
    and the whole pass repeated ``--passes`` times; the paired difference (variant minus disabled, same frame, same
    pass) is reported with its spread. On a shared 2-core machine this difference is far below the noise of a frame
@@ -82,6 +83,38 @@ def per_record_ns(names: list[str], calls: int, repeats: int) -> dict:
                     pass
             out[v]["stage_block"].append((time.perf_counter_ns() - t0) / n_add)
     return {v: {k: float(np.median(x)) for k, x in d.items()} for v, d in out.items()}
+
+
+def threaded_record_ns(names: list[str], calls: int, repeats: int, n_threads: int = 3) -> dict:
+    """ns per record (wall time / records) with ``n_threads`` threads recording into one shared profiler, as the live
+    loop's capture, processing and relocalization threads do; the single-thread figure of the same run beside it."""
+    import threading
+
+    out = {}
+    for v in ("trace", "enabled"):
+        per = {"threads": [], "single": []}
+        loops = max(1, calls // (len(names) * n_threads))
+        for _ in range(repeats):
+            prof = make_profiler(v, calls * 2)
+
+            def work(tname):
+                rec = prof.record
+                for _ in range(loops):
+                    for name in names:
+                        rec(name, 0, 1000, tname)
+
+            ths = [threading.Thread(target=work, args=(f"t{i}",)) for i in range(n_threads)]
+            t0 = time.perf_counter_ns()
+            for t in ths:
+                t.start()
+            for t in ths:
+                t.join()
+            per["threads"].append((time.perf_counter_ns() - t0) / (loops * len(names) * n_threads))
+            t0 = time.perf_counter_ns()
+            work("t0")
+            per["single"].append((time.perf_counter_ns() - t0) / (loops * len(names)))
+        out[v] = {k: float(np.median(x)) for k, x in per.items()}
+    return out
 
 
 def perf_counter_ns_cost(n: int = 200_000) -> float:
@@ -173,6 +206,7 @@ def main(argv=None) -> int:
              *(f"reloc.{s}" for s in RELOC_STAGES)]
     micro = per_record_ns(names, args.calls, args.repeats)
     pc_ns = perf_counter_ns_cost()
+    threaded = threaded_record_ns(names, args.calls, max(3, args.repeats // 3))
     e2e = end_to_end(frames, extract, relocalizer, args.passes, args.window,
                      make_submap_fuser(cfg) if args.window > 1 else None)
     per_frame = e2e["records_per_frame"]
@@ -180,7 +214,8 @@ def main(argv=None) -> int:
     # Clocks inside the components: extraction reads perf_counter 2 per stage + 2, relocalization ~2 per stage and
     # round (a typical query here: ~3 rounds), the pipeline 4 perf_counter_ns per frame (always on, all variants).
     component_clocks = 2 * len(EXTRACT_STAGES) + 2 + 2 * 12 + 4
-    rows, results = [], {"per_record_ns": micro, "perf_counter_ns_per_call": pc_ns, "end_to_end": e2e,
+    rows, results = [], {"per_record_ns": micro, "per_record_ns_3_threads": threaded,
+                         "perf_counter_ns_per_call": pc_ns, "end_to_end": e2e,
                          "records_per_frame": per_frame, "frame_median_ms_disabled": frame_ms, "variants": {}}
     for v in VARIANTS:
         cost_us = micro[v]["record"] * per_frame / 1e3
@@ -198,6 +233,10 @@ def main(argv=None) -> int:
                 title=f"Profiler overhead: {per_frame:.1f} records per frame (sequential pipeline, sim:{args.scene}, "
                       f"{len(frames)} frames x {args.passes} passes; machine shared, frame times noisy)",
                 floatfmt=[".0f", ".0f", ".0f", ".0f", ".2f", ".4f", ".2f", "s"])
+    print_table(["variant", "ns/record, 3 threads sharing one profiler", "ns/record, 1 thread (same run)"],
+                [[v, threaded[v]["threads"], threaded[v]["single"]] for v in threaded],
+                title="Contention: the live loop's threads record into one profiler (one lock, and the GIL)",
+                floatfmt=".0f")
     print(f"always on in every variant: ~{component_clocks} perf_counter calls per frame inside the components, "
           f"{pc_ns:.0f} ns each = {component_clocks * pc_ns / 1e3:.1f} us per frame; relocalizations "
           f"{e2e['statuses']}")
