@@ -75,11 +75,13 @@ def cache_location() -> str:
     return os.environ.get("NUMBA_CACHE_DIR") or "__pycache__ beside each module"
 
 
-def warm_up(modules: tuple[str, ...] = (), *, quiet: bool = False) -> dict:
+def warm_up(modules: tuple[str, ...] = (), *, quiet: bool = False,
+            say: Callable[[str], None] | None = None) -> dict:
     """Import ``modules``, run every registered warm-up, and report compilation.
 
     Returns ``{"kernels": n, "cold": n_without_cache, "seconds": t}``. When some kernel has no cache entry yet, one
-    line goes to stderr before compiling (unless ``quiet``).
+    line goes to stderr before compiling (unless ``quiet``), through ``say`` when given (``tqdm.write`` keeps it
+    clear of a progress bar).
     """
     import importlib
 
@@ -87,11 +89,11 @@ def warm_up(modules: tuple[str, ...] = (), *, quiet: bool = False) -> dict:
         importlib.import_module(name)
     cold = sum(1 for d in _KERNELS if not _has_cache_index(d))
     if cold and not quiet:
-        print(
-            f"numba: compiling {cold} kernels on a cold cache ({cache_location()}); later starts load them from it",
-            file=sys.stderr,
-            flush=True,
-        )
+        line = f"numba: compiling {cold} kernels on a cold cache ({cache_location()}); later starts load them from it"
+        if say is not None:
+            say(line)
+        else:
+            print(line, file=sys.stderr, flush=True)
     t0 = time.perf_counter()
     for fn in list(_WARMUPS):
         fn()

@@ -43,6 +43,15 @@ def _percentiles(values) -> dict:
             "mean": round(float(v.mean()), 3)}
 
 
+def _say_above_progress(line: str) -> None:
+    """One line on stderr that a progress bar (``reloc demo``'s) does not overwrite."""
+    import sys
+
+    from tqdm import tqdm
+
+    tqdm.write(line, file=sys.stderr)
+
+
 def run_demo(spec: DemoSpec | None = None, cfg=None, *, progress: Callable[[str, int, int], None] | None = None,
              keep: dict | None = None) -> dict:
     """Run the demo; ``progress(step, done, total)`` is called as it goes. Returns the figures as a JSON-able dict:
@@ -73,7 +82,7 @@ def run_demo(spec: DemoSpec | None = None, cfg=None, *, progress: Callable[[str,
     t0 = time.perf_counter()
     step("compile", 0, 1)
     info = warm_up(("reloc.matching._kernels", "reloc.mapping._kernels", "reloc.extraction.pipeline",
-                    "sim.render"), quiet=True)
+                    "sim.render"), say=_say_above_progress)
     phases["compile_s"] = time.perf_counter() - t0
     step("compile", 1, 1)
 

@@ -51,6 +51,10 @@ def test_cold_cache_prints_one_line_and_warm_prints_none(monkeypatch, capsys):
     monkeypatch.setattr(_numba, "_has_cache_index", lambda disp: False)
     _numba.warm_up(quiet=True)
     assert capsys.readouterr().err == ""
+    said = []
+    _numba.warm_up(say=said.append)  # e.g. tqdm.write, to stay clear of a progress bar
+    assert len(said) == 1 and said[0].startswith("numba: compiling 3 kernels")
+    assert capsys.readouterr().err == ""
 
 
 def test_a_fresh_process_uses_the_directory_it_is_given(tmp_path):
