@@ -70,3 +70,17 @@ def test_locate_writes_one_line_per_query(office_sequence, tmp_path):
         else:
             assert x["T_map_cam"] is None and x["reason"]
     assert sum(x["status"] == "relocalized" for x in lines) >= 2
+
+
+def test_frame_ranges_that_select_nothing_are_errors():
+    import click
+
+    from reloc.commands.map_cmd import parse_frames
+
+    assert parse_frames("2:5", 10) == range(2, 5) and parse_frames(":", 10) == range(10)
+    assert parse_frames("-3:", 10) == range(7, 10) and parse_frames("8:99", 10) == range(8, 10)
+    assert parse_frames("-1", 10) == range(9, 10) and parse_frames(None, 4) == range(4)
+    for bad, said in (("5:2", "selects none of the 10 frames"), ("10:20", "selects none"),
+                      ("10", "outside the 10 frames"), ("a:b", "expected a:b or an index")):
+        with pytest.raises(click.BadParameter, match=said):
+            parse_frames(bad, 10)

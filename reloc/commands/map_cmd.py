@@ -8,14 +8,19 @@ SOURCES = ("extraction", "oracle")
 
 
 def parse_frames(spec: str | None, n: int) -> range:
-    """Frame indices of ``a:b`` (Python slice semantics, either end optional, negative from the end) or ``i``."""
+    """Frame indices of ``a:b`` (Python slice semantics, either end optional, negative from the end) or ``i``.
+
+    A range that selects no frame (``5:2``, or past the end) is an error, not an empty run."""
     if spec is None:
         return range(n)
     text = spec.strip()
     try:
         if ":" in text:
             a, _, b = text.partition(":")
-            return range(n)[slice(int(a) if a.strip() else None, int(b) if b.strip() else None)]
+            picked = range(n)[slice(int(a) if a.strip() else None, int(b) if b.strip() else None)]
+            if len(picked) == 0:
+                raise click.BadParameter(f"{spec!r} selects none of the {n} frames (0:{n})", param_hint="--frames")
+            return picked
         i = int(text)
     except ValueError:
         raise click.BadParameter(f"expected a:b or an index, got {spec!r}", param_hint="--frames") from None
