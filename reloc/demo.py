@@ -76,6 +76,11 @@ def run_demo(spec: DemoSpec | None = None, cfg=None, *, progress: Callable[[str,
     from reloc.matching import MatchingParams, Relocalizer
 
     spec = spec or DemoSpec()
+    from sim.scenes import SCENE_NAMES
+
+    for what, name in (("scene", spec.scene), ("negative_scene", spec.negative_scene)):
+        if name not in SCENE_NAMES:  # before compiling, which takes a minute on a cold cache
+            raise ValueError(f"{what}: expected one of {', '.join(SCENE_NAMES)}, got {name!r}")
     cfg = cfg or Config()
     step = progress or (lambda *_: None)
     phases = {}

@@ -97,3 +97,14 @@ def test_demo_runs_and_reports(tmp_path, monkeypatch, capsys):
     assert "TP" in text and "relocalization_total" in text
     json.loads(json.dumps(result))  # JSON-ready
     assert np.isfinite(result["phases_s"]["total_s"])
+
+
+def test_demo_names_an_unknown_scene_before_any_work():
+    from reloc.demo import DemoSpec, run_demo
+
+    steps = []
+    for spec, said in ((DemoSpec(scene="kitchen"), "scene: expected one of living_room"),
+                       (DemoSpec(negative_scene="garage"), "negative_scene: expected one of .* got 'garage'")):
+        with pytest.raises(ValueError, match=said):
+            run_demo(spec, progress=lambda step, done, total: steps.append(step))
+    assert steps == []
