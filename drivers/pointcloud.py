@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import os
 import tokenize
+import zipfile
 from pathlib import Path
 
 import numpy as np
@@ -43,7 +44,7 @@ def _read_npy(p: Path) -> np.ndarray:
         arr = np.load(p, allow_pickle=False)
     except FileNotFoundError:
         raise FileNotFoundError(f"{p}: point cloud not found") from None
-    except (ValueError, EOFError, SyntaxError, tokenize.TokenError) as exc:  # a bad or truncated header or body
+    except (ValueError, EOFError, SyntaxError, tokenize.TokenError, zipfile.BadZipFile) as exc:  # bad header/body
         raise ValueError(f"{p}: not a plain numeric .npy array ({type(exc).__name__}: {exc})") from None
     except MemoryError:  # the header claims a shape that would not fit in memory
         raise ValueError(f"{p}: not a plain numeric .npy array (its header claims more data than fits in memory)") from None

@@ -285,3 +285,11 @@ def test_non_finite_or_invalid_plane_sets_are_refused_by_the_relocalizer():
     normals = room.normals.copy()
     normals[0] = np.nan
     assert outcome(lambda: Relocalizer(replace(room, normals=normals)), names="plane_map") == "error"
+
+
+def test_a_cloud_whose_planes_all_drop_out_in_refinement_gives_no_plane():
+    # A plane 10 km sideways of the sensor: every merged plane is dropped in the last refinement pass, and
+    # renumbering the points indexed an empty table (IndexError) before.
+    pts = _plane_grid(np.array([0.9920792231604355, 0.0, 0.12561375312196912]), 2.6, 24, 0.05, 1e4)
+    planes = extract_planes_from_points(pts, EXTRACT).planes
+    assert np.isfinite(planes.normals).all() and np.isfinite(planes.offsets).all()

@@ -169,7 +169,7 @@ def test_duplicate_property_is_refused_with_the_file_named(tmp_path):
 
 def test_npy_with_a_bad_header_is_a_value_error(tmp_path):
     p = tmp_path / "bad.npy"
-    for data in (b"", b"\x93NUMPY\x01\x00v\x00{'descr': '<i2', 'fortran_order': False, 'shape': (2, 2), }  (" + b" " * 60
-                 + b"\n" + bytes(8)):  # EOFError, tokenize.TokenError before
+    for data in (b"", b"PK\x03\x04", b"\x93NUMPY\x01\x00v\x00{'descr': '<i2', 'fortran_order': False, 'shape': (2, 2), }  (" + b" " * 60
+                 + b"\n" + bytes(8)):  # EOFError, BadZipFile (zip magic), TokenError before
         p.write_bytes(data)
         assert outcome(lambda: read_point_cloud(p), names="bad.npy") == "error"

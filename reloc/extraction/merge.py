@@ -264,7 +264,9 @@ def refine_merged_planes(
     # Renumber the pass's assignment: removed bevels lose their points, merged fragments go to their survivor.
     old_to_kept = np.full(n, -1, np.int32)
     old_to_kept[keep] = np.arange(int(keep.sum()), dtype=np.int32)
-    table = np.where(old_to_kept >= 0, kept_to_final[np.maximum(old_to_kept, 0)], -1).astype(np.int32)
+    # (np.where evaluates both branches: with no plane kept there is nothing to index.)
+    table = (np.where(old_to_kept >= 0, kept_to_final[np.maximum(old_to_kept, 0)], -1) if len(kept_to_final)
+             else np.full(n, -1)).astype(np.int32)
     kfin.remap_points(point_plane, m, table)
     n_out = len(out)
     support = (np.zeros(n_out, np.int64), np.zeros((n_out, 3)), np.zeros((n_out, 3, 3)))
