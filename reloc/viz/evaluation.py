@@ -141,12 +141,12 @@ def plot_eval_bars(
 ):
     """Save a PNG with one row per panel: precision and recall (%) as horizontal bars per row name on the left, the
     stacked TP / FN / TN / FP counts on the right. The "all" row is set apart by a line. ``height_px`` None: sized to
-    the rows (about 34 px per bar group). Returns the path written."""
+    the rows (about 40 px per bar group). Returns the path written."""
     if not panels:
         raise ValueError("panels: expected at least one panel, got none")
     units = [_panel_height(p) for p in panels]
     if height_px is None:
-        height_px = int(max(300, 34 * sum(units) + (80 if title else 40)))
+        height_px = int(max(300, 40 * sum(units) + (80 if title else 40)))
     fig = new_figure(width_px, height_px)
     if title:
         fig.suptitle(title, fontsize=13, weight="bold")
