@@ -81,11 +81,26 @@ def test_plot_map_alone_with_results_and_with_a_submap(files, tmp_path, capsys):
     assert _png_size(out) == (450, 380)
 
 
-def test_plot_frame(files, tmp_path):
+def test_plot_frame(files, tmp_path, capsys):
     out = tmp_path / "frame.png"
     assert main(["plot", "frame", str(files["seq"]), "--index", "-1", "--source", "oracle", "-o", str(out),
                  "--width", "700", "--height", "260"]) == 0
     assert _png_size(out) == (700, 260)
+    # --map: the config the map recorded; a map without one is named.
+    from reloc.commands.map_cmd import config_sections
+    from reloc.config import Config
+    from reloc.mapping import load_map
+
+    plain = load_map(files["map"])
+    with_cfg = save_map(tmp_path / "cfg.npz", PlaneMap(plain.planes, plain.observations,
+                                                       meta={"config": config_sections(Config())}))
+    out2 = tmp_path / "frame2.png"
+    assert main(["plot", "frame", str(files["seq"]), "--index", "2", "--map", str(with_cfg), "-o", str(out2),
+                 "--width", "600", "--height", "240"]) == 0
+    assert _png_size(out2) == (600, 240)
+    assert main(["plot", "frame", str(files["seq"]), "--index", "2", "--map", str(files["map"]), "-o",
+                 str(out2)]) == 2
+    assert f"{files['map']}: the map records no config" in capsys.readouterr().err
 
 
 def _summary(name, tp, tn, fp, fn):

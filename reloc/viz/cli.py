@@ -202,16 +202,28 @@ def plot_map(map_path, results_path, truth_seq, submap_seq, query_frame, window,
               help="Planes from extraction or the simulator's ground truth (sequences written by reloc sim).")
 @click.option("--config", "config_path", type=click.Path(exists=True, dir_okay=False), default=None,
               help="YAML config (defaults otherwise).")
+@click.option("--map", "map_path", type=click.Path(dir_okay=False), default=None,
+              help="Extract with the configuration a map was built with (recorded in the map file), not --config.")
 @_size_options(1500, 560)
-def plot_frame(seq, index, source, config_path, out_path, title, width, height):
+def plot_frame(seq, index, source, config_path, map_path, out_path, title, width, height):
     """Frame INDEX of SEQ: its depth, and its planes coloured with their normals (camera frame)."""
     from drivers.readers import open_sequence
-    from reloc.config import load_config
+    from reloc.config import config_from_dict, load_config
     from reloc.viz.frames import plot_frame_planes
 
     _check_png(out_path)
+    if map_path and config_path:
+        raise click.UsageError("give --config or --map (the map's recorded config), not both")
     need_matplotlib()
-    cfg = load_config(config_path)
+    if map_path:
+        from reloc.mapping import load_map
+
+        recorded = load_map(map_path).meta.get("config")
+        if not isinstance(recorded, dict):
+            raise ValueError(f"{map_path}: the map records no config (meta.config); use --config")
+        cfg = config_from_dict(recorded, source=f"{map_path}: meta.config")
+    else:
+        cfg = load_config(config_path)
     sequence = open_sequence(seq)
     i = parse_frames(str(index), len(sequence))[0]
     frame = sequence[i]
