@@ -84,3 +84,16 @@ def test_frame_ranges_that_select_nothing_are_errors():
                       ("10", "outside the 10 frames"), ("a:b", "expected a:b or an index")):
         with pytest.raises(click.BadParameter, match=said):
             parse_frames(bad, 10)
+
+
+def test_map_too_small_to_relocalize_in_says_why(office_sequence, tmp_path, capsys):
+    out = tmp_path / "tiny.npz"
+    # Two frames make at most two keyframes: every plane is seen fewer than min_observations = 3 times.
+    assert main(["map", "build", str(office_sequence), "-o", str(out), "--frames", "0:2", "--quiet"]) == 0
+    captured = capsys.readouterr()
+    assert "0 planes" in captured.out and len(load_map(out)) == 0
+    assert "note: 0 planes are too few to relocalize in" in captured.err
+    assert "mapping.min_observations = 3" in captured.err
+    # A map that can be used says nothing of the kind.
+    assert main(["map", "build", str(office_sequence), "-o", str(tmp_path / "ok.npz"), "--quiet"]) == 0
+    assert "note:" not in capsys.readouterr().err

@@ -122,6 +122,15 @@ def build(seq, out_path, frames_spec, source, config_path, quiet):
         f"{plane_map.meta['frame_count']} frames ({plane_map.meta['frames_without_pose']} without pose, "
         f"{plane_map.meta['frames_failed']} failed) in {time.perf_counter() - t0:.1f} s"
     )
+    need = cfg.evaluation.min_matched_planes
+    if s["planes"] < need:
+        # Not an error (the file is a valid map), but nothing can be relocalized in it: say why and what helps.
+        click.echo(
+            f"note: {s['planes']} planes are too few to relocalize in (a pose needs evaluation.min_matched_planes = "
+            f"{need}); planes seen in fewer than mapping.min_observations = {cfg.mapping.min_observations} of the "
+            f"{plane_map.meta['keyframe_count']} keyframes were dropped: map a longer sequence, or lower "
+            "mapping.min_observations or the keyframe thresholds (mapping.keyframe_min_translation_m, "
+            "keyframe_min_rotation_deg)", err=True)
 
 
 @map_group.command("info")
