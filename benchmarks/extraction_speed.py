@@ -5,7 +5,9 @@
 Frames: robot trajectories through four scenes (living_room, office, apartment, corridor), rendered before any
 timing, at 640x480 (Kinect preset, Kinect noise) and 640x400 (OAK-D preset, stereo noise), full resolution. Every
 configuration is warmed up (JIT and buffers) before it is timed; times come from ``ExtractionResult.timings_ms``
-(``time.perf_counter`` around each stage) and the wall time of the whole call. One numba thread by default
+(``time.perf_counter`` around each stage), the wall time of the whole call and the thread's CPU time for it
+(``time.thread_time``: on a shared machine the wall time also counts waiting for other processes; the load average
+at the start and end is recorded). One numba thread by default
 (``NUMBA_NUM_THREADS`` is set before numba is imported); ``--threads 2`` times the same kernels with two.
 
 Configurations run side by side on the same frames: the defaults; without the point refinement (planes straight
@@ -71,6 +73,7 @@ def main() -> None:
     print(f"warm-up: {info['kernels']} kernels in {info['seconds']:.1f} s ({info['cold']} compiled cold); "
           f"numba threads: {args.threads}")
 
+    load_start = os.getloadavg()
     per_scene = -(-n_frames // len(SCENES))
     datasets = {}
     for camera, noise in DATASETS:
@@ -89,33 +92,42 @@ def main() -> None:
             for f in frames[:5]:  # warm-up: buffers sized, caches hot
                 ex.extract(f)
             stage = {k: [] for k in (*STAGES, "total")}
-            wall, n_planes, n_points = [], [], []
+            wall, cpu, n_planes, n_points = [], [], [], []
             for f in frames:
+                c0 = time.thread_time()
                 t0 = time.perf_counter()
                 res = ex.extract(f)
                 wall.append((time.perf_counter() - t0) * 1e3)
+                cpu.append((time.thread_time() - c0) * 1e3)
                 for k in stage:
                     stage[k].append(res.timings_ms.get(k, 0.0))
                 n_planes.append(len(res.planes))
                 n_points.append(res.stats["points"])
             wall = np.asarray(wall)
+            cpu = np.asarray(cpu)
             med = {k: float(np.median(v)) for k, v in stage.items()}
             rec = {
                 "camera": camera, "noise": noise, "width": w, "height": h, "variant": name, "params": VARIANTS[name],
                 "frames": len(frames), "threads": args.threads,
                 "wall_ms": {"median": float(np.median(wall)), "p95": float(np.percentile(wall, 95)),
                             "p99": float(np.percentile(wall, 99)), "mean": float(wall.mean())},
+                "cpu_ms": {"median": float(np.median(cpu)), "p95": float(np.percentile(cpu, 95)),
+                           "p99": float(np.percentile(cpu, 99))},
                 "stage_median_ms": med,
                 "stage_p95_ms": {k: float(np.percentile(v, 95)) for k, v in stage.items()},
                 "planes_median": float(np.median(n_planes)), "points_median": float(np.median(n_points)),
             }
             results.append(rec)
             rows.append([f"{w}x{h} {name}", rec["wall_ms"]["median"], rec["wall_ms"]["p95"], rec["wall_ms"]["p99"],
-                         *[med[k] for k in STAGES], rec["planes_median"]])
-    print_table(["frames / variant", "median", "p95", "p99", *STAGES, "planes"], rows,
+                         rec["cpu_ms"]["median"], *[med[k] for k in STAGES], rec["planes_median"]])
+    load_end = os.getloadavg()
+    print_table(["frames / variant", "median", "p95", "p99", "cpu med", *STAGES, "planes"], rows,
                 title=f"Extraction latency (ms per frame, {n_frames} frames per camera, {args.threads} thread(s); "
                       "stage columns are medians)",
-                floatfmt=["s"] + [".2f"] * (3 + len(STAGES)) + [".0f"])
+                floatfmt=["s"] + [".2f"] * (4 + len(STAGES)) + [".0f"])
+    print(f"load average (1, 5, 15 min) at the start {load_start}, at the end {load_end} on {os.cpu_count()} cores: "
+          "wall times include waiting for other processes; 'cpu med' is this thread's CPU time (time.thread_time), "
+          "which does not (shared caches and cores still slow it)")
     probe = _run_parallel_probe()
     if probe is not None:
         print_table(["loop (640x480 frames)", "serial ms", "prange 2 threads ms", "speed-up"],
@@ -124,7 +136,8 @@ def main() -> None:
                     floatfmt=["s", ".3f", ".3f", ".2f"])
     path = write_results(args.name, params={"frames_per_camera": n_frames, "threads": args.threads,
                                             "scenes": SCENES, "datasets": DATASETS, "variants": variants},
-                         results={"latency": results, "parallel_probe": probe})
+                         results={"latency": results, "parallel_probe": probe,
+                                  "load_average": {"start": load_start, "end": load_end}})
     print(f"wrote {path}")
 
 
