@@ -260,3 +260,84 @@ def test_assemble_statistics_match_numpy():
     assert len(got) == len(scells)
     assert np.allclose(np.sort(got, axis=0), np.sort(means, axis=0), atol=1e-5)
     assert ps.labels is None
+
+
+def _refit_sums_numpy(pts, start, plane_of_voxel, planes, band, refs, coeff, step):
+    """The refinement pass of ``assign_points`` for voxels whose only candidate is their own plane (no neighbours),
+    Kinect law, depth noise along the rays: plane of every point, Tukey x inverse-variance weighted moments about
+    ``refs``, and the plain moments of the supporting points. ``step`` > 1: every ``step``-th point of a voxel."""
+    n_planes = len(planes)
+    out = {"point_plane": np.full(len(pts), -1), "w": np.zeros(n_planes), "s": np.zeros((n_planes, 3)),
+           "S": np.zeros((n_planes, 3, 3)), "n": np.zeros(n_planes, int), "sum": np.zeros((n_planes, 3)),
+           "sup": np.zeros((n_planes, 10))}
+    for v in range(len(start) - 1):
+        q = plane_of_voxel[v]
+        if q < 0:
+            continue
+        idx = np.arange(start[v], start[v + 1])[::step]
+        p = pts[idx].astype(np.float64)
+        z = np.maximum(p[:, 2], 1e-3)
+        g = z / (coeff * z * z)
+        npd = p @ planes[q, :3]
+        u = np.abs(npd + planes[q, 3]) * g / np.maximum(np.abs(npd), 0.05 * z)
+        t = np.clip(1.0 - (u / band[q]) ** 2, 0.0, None)
+        w = t * t * g * g
+        x = p - refs[q]
+        out["w"][q] += w.sum()
+        out["s"][q] += w @ x
+        out["S"][q] += (x * w[:, None]).T @ x
+        out["n"][q] += int((t > 0).sum())
+        out["sum"][q] += p[t > 0].sum(0)
+        if step == 1:
+            h = u <= band[q]
+            out["point_plane"][idx[h]] = q
+            xh = x[h]
+            up = np.triu_indices(3)
+            out["sup"][q] += np.concatenate([[h.sum()], xh.sum(0), (xh.T @ xh)[up]])
+    return out
+
+
+@pytest.mark.parametrize("step", [1, 4])
+def test_refinement_pass_sums_match_numpy(step):
+    """The refit sums of the refinement pass (all points, and the cheap 1-in-4 pass), against NumPy."""
+    from reloc.extraction import _kernels_finalize as kfin
+
+    rng = np.random.default_rng(5)
+    coeff = 1.425e-3
+    walls = [(n / np.linalg.norm(n), d) for n, d in ((np.array([0.3, 0.0, -1.0]), 2.5),
+                                                        (np.array([-1.0, 0.1, -0.2]), 1.2))]
+    pts = np.concatenate([
+        _plane_points(rng, 3000, n, d, 0.004, extent=0.6, centre=c)
+        for (n, d), c in zip(walls, ([0.0, 0.0, 2.4], [-1.0, 0.0, 2.4]))
+    ] + [rng.uniform([-1.5, -0.7, 1.5], [0.7, 0.7, 3.2], size=(300, 3))]).astype(np.float32)
+    g = voxelize(pts, voxel_size_m=0.25)
+    planes = np.array([np.r_[n, d] for n, d in walls])  # offsets > 0: normals toward the sensor
+    # Each voxel takes the plane nearer its centroid when within 3 cm; some voxels have none.
+    cent = g.sums / g.counts[:, None]
+    dist = np.abs(cent @ planes[:, :3].T + planes[:, 3])
+    plane_of_voxel = np.where(dist.min(1) < 0.03, dist.argmin(1), -1).astype(np.int32)
+    band = np.array([4.0, 5.0])
+    refs = np.array([[0.0, 0.0, 2.4], [-1.0, 0.0, 2.4]])
+    n_planes, m = len(planes), len(pts)
+    acc = dict(w=np.zeros(n_planes), s=np.zeros((n_planes, 3)), S=np.zeros((n_planes, 3, 3)),
+               n=np.zeros(n_planes, np.int64), sum=np.zeros((n_planes, 3)), amb=np.zeros(n_planes, np.int64),
+               sup=np.zeros((n_planes, 10)))
+    point_plane = np.full(m, -7, np.int32)
+    kfin.assign_points(
+        g.points, g.points.view(np.int32), step, True, g.start, len(g), g.keys, g.box, g.dense, g.cellmap, g.tkeys,
+        g.tvals, g.counts, g.sums, g.scatters, plane_of_voxel, planes, band, 2, coeff, True, False, point_plane,
+        True, True, refs, acc["w"], acc["s"], acc["S"], acc["n"], acc["sum"], acc["amb"], acc["sup"],
+        np.zeros((3, int(g.counts.max()))),
+    )
+    ref = _refit_sums_numpy(g.points, g.start, plane_of_voxel, planes, band, refs, coeff, step)
+    assert ref["n"].min() > 100  # both planes hold points of the pass
+    assert np.allclose(acc["w"], ref["w"], rtol=1e-9)
+    assert np.allclose(acc["s"], ref["s"], rtol=1e-9, atol=1e-9 * ref["w"].max())
+    assert np.allclose(acc["S"], ref["S"], rtol=1e-9, atol=1e-9 * ref["w"].max())
+    assert np.array_equal(acc["n"], ref["n"]) and np.allclose(acc["sum"], ref["sum"], rtol=1e-9)
+    assert not acc["amb"].any()  # one candidate per voxel: no corner points
+    if step == 1:
+        assert np.array_equal(point_plane, ref["point_plane"])
+        assert np.allclose(acc["sup"], ref["sup"], rtol=1e-9, atol=1e-9)
+    else:
+        assert np.all(point_plane < 0)  # the cheap pass assigns no point to a plane
