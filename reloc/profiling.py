@@ -1,7 +1,7 @@
 """Stage timing cheap enough to leave on in production, with per-stage percentiles and a Chrome trace.
 
 One :class:`Profiler` is shared by every thread of a run. Each timed stage costs two ``perf_counter_ns`` calls, a lock
-and a write into preallocated arrays: 1-2 us per record, about 3 us with the trace on, some 0.05-0.1% of a frame
+and a write into preallocated arrays: about 1 us per record, 2 us with the trace on, some 0.1% of a frame
 (``benchmarks/profiling_overhead.py`` measures it).
 Memory is bounded: each stage keeps its last ``window`` durations for percentiles (exact counts, totals and maxima
 over the whole run), and the trace keeps at most ``trace_capacity`` events (the newest).
