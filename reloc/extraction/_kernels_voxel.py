@@ -121,14 +121,21 @@ def scatter_dense(pts, m, point_key, cellmap, box, voxel_key, voxel_start, sorte
     cursor = np.empty(nv, np.int64)
     for v in range(nv):
         cursor[v] = voxel_start[v]
+    # Runs of points of one cell (neighbouring pixels) advance a register, not the cell's cursor in memory.
+    last = -1
+    j = 0
     for i in range(m):
-        v = cellmap[point_key[i]]
-        j = cursor[v]
-        cursor[v] = j + 1
+        key = point_key[i]
+        if key != last:
+            if last >= 0:
+                cursor[cellmap[last]] = j
+            last = key
+            j = cursor[cellmap[key]]
         sorted_pts[j, 0] = pts[i, 0]
         sorted_pts[j, 1] = pts[i, 1]
         sorted_pts[j, 2] = pts[i, 2]
         sorted_src[j] = i
+        j += 1
     return nv
 
 
