@@ -105,22 +105,35 @@ class SeriesProfiler(Profiler):
 
 
 class _Tally(deque):
-    """The firmware's pose-check log, counting every check by status and outcome as it is appended."""
+    """The firmware's pose-check log, counting every check by status, outcome and stamp (a pose stamped in the MCU
+    clock is checked at its stamp; one sent before the host knows that clock, at its arrival) as it is appended."""
 
-    def __init__(self, maxlen: int):
+    def __init__(self, maxlen: int, mcu_counters: dict):
         super().__init__(maxlen=maxlen)
         self.counts: Counter = Counter()
-        self.max_error_m = 0.0
-        self.max_error_deg = 0.0
+        self.max_error: dict = {}
+        self.off_ok: list = []  # the first relocalized (OK) poses off the firmware's ground truth
+        self._mcu_counters = mcu_counters
+        self._unsynced_seen = 0
 
     def append(self, check):
         from firmware_bridge.messages import PoseStatus
 
+        unsynced = self._mcu_counters["poses_unsynced"]  # counted by the firmware just before this check
+        stamp = "at_arrival" if unsynced != self._unsynced_seen else "at_stamp"
+        self._unsynced_seen = unsynced
         name = {PoseStatus.OK: "ok", PoseStatus.TRACKED: "tracked"}.get(check.status, "rejected")
-        self.counts[f"{name}:{'good' if check.ok else 'off'}" if name != "rejected" else name] += 1
-        if name == "ok" and math.isfinite(check.position_error_m):
-            self.max_error_m = max(self.max_error_m, check.position_error_m)
-            self.max_error_deg = max(self.max_error_deg, check.yaw_error_deg)
+        if name == "rejected":
+            self.counts["rejected"] += 1
+        else:
+            self.counts[f"{name}:{stamp}:{'good' if check.ok else 'off'}"] += 1
+            if math.isfinite(check.position_error_m):
+                m, d = self.max_error.get(f"{name}:{stamp}", (0.0, 0.0))
+                self.max_error[f"{name}:{stamp}"] = (max(m, check.position_error_m), max(d, check.yaw_error_deg))
+            if name == "ok" and not check.ok and len(self.off_ok) < 20:
+                self.off_ok.append({"request_id": check.request_id, "stamp": stamp,
+                                    "position_error_m": check.position_error_m, "yaw_error_deg": check.yaw_error_deg,
+                                    "latency_ms": None if check.latency_ns is None else check.latency_ns / 1e6})
         super().append(check)
 
 
@@ -204,7 +217,7 @@ def run_soak(n_frames: int, *, width: int = 160, height: int = 100, rate_hz: flo
     serial_faults = FaultInjector(seed=seed + 1, garbage_rate=faults.serial_garbage_rate)
     mcu = McuSimulator(PtyEndpoint(link), path=path, reloc_period_s=5.0, odom_rate_hz=50.0, seed=seed,
                        pose_tolerance_m=FALSE_RELOC_M, pose_tolerance_deg=FALSE_RELOC_DEG, faults=serial_faults)
-    mcu.pose_checks = _Tally(maxlen=1000)
+    mcu.pose_checks = _Tally(maxlen=1000, mcu_counters=mcu.counters)
     bridge = HostBridge(link, reconnect_backoff_s=(0.05, 0.1, 0.2, 0.5), pose_rate_hz=10.0)
     camera = _robot_camera(mcu, scene, T_base_cam, width, height, rate_hz, seed)
     every = faults.camera_disconnect_every
@@ -369,8 +382,9 @@ def run_soak(n_frames: int, *, width: int = 160, height: int = 100, rate_hz: flo
         "tracking": s["tracking"], "odometry": s["odometry"],
         "firmware": {
             "pose_checks": dict(mcu.pose_checks.counts),
-            "ok_pose_max_error_m": mcu.pose_checks.max_error_m,
-            "ok_pose_max_error_deg": mcu.pose_checks.max_error_deg,
+            "pose_max_error_m_deg": mcu.pose_checks.max_error,
+            "ok_poses_off": mcu.pose_checks.off_ok,
+            "poses_unsynced": mcu_stats.get("poses_unsynced"),
             **{k: mcu_stats.get(k) for k in ("requests_sent", "requests_acked", "requests_failed",
                                              "requests_unanswered", "poses_received", "unplugs",
                                              "half_frames_sent", "connections", "write_failures")},

@@ -301,6 +301,7 @@ class LiveLoop:
         self._prev_odom: tuple[str, np.ndarray, int] | None = None  # (kind, T_odom_cam, seq)
         self._odom_reset_pending = False
         self._odom_epoch = 0  # counts resets of the odometry chain
+        self._host_stamps = False  # the source stamps frames with the host clock (see _host_clock)
         self._bad_streak = 0
         self._last_attempt_s: float | None = None
         self._last_ok_s: float | None = None
@@ -548,7 +549,8 @@ class LiveLoop:
             self.state = "searching"
             self._event(f"lost ({lost_trigger}) at seq {frame.seq}")
         if T_pred is not None and self.bridge is not None:
-            self._post(("tracked", T_pred, frame.stamp_ns if _host_clock(frame, t_cap) else t_cap, 0.0, 0))
+            self._post(("tracked", T_pred, frame.stamp_ns if self._host_clock(frame.stamp_ns, t_cap) else t_cap, 0.0,
+                        0))
 
         trigger, request_ids = self._trigger(lost_trigger)
         if trigger is not None:
@@ -641,7 +643,7 @@ class LiveLoop:
         else:
             self.state = "searching"
         if self.bridge is not None:
-            stamp = job.stamp_ns if _host_clock_stamp(job.stamp_ns, job.t_cap_ns) else job.t_cap_ns
+            stamp = job.stamp_ns if self._host_clock(job.stamp_ns, job.t_cap_ns) else job.t_cap_ns
             for rid in job.request_ids or (0,):
                 self._post(("reloc", T if ok else None, stamp, score, rid, reason))
 
@@ -723,10 +725,20 @@ class LiveLoop:
                 self._event(f"serial error: {exc!r}")
                 self._workers_stop.wait(0.05)
 
+    def _host_clock(self, stamp_ns: int, t_cap_ns: int) -> bool:
+        """Whether the source stamps frames with the host clock: true from the first frame stamped within a second
+        of its capture on. Kept for the run, so that a frame delivered late (a camera that stalled with a frame in
+        its buffer) keeps its own stamp: stamped with its capture time instead, its pose would reach the MCU labelled
+        with the wrong moment (off by the robot's motion meanwhile) and its odometry would be looked up there."""
+        if not self._host_stamps:
+            self._host_stamps = _host_clock_stamp(stamp_ns, t_cap_ns)
+        return self._host_stamps
+
     def _odometry_pose(self, frame: DepthFrame, t_cap: int) -> tuple[np.ndarray | None, str]:
         mode = self.odometry_mode
         if mode in ("auto", "bridge") and self.bridge is not None:
-            T_odom_base = self.bridge.T_odom_base_at(frame.stamp_ns if _host_clock(frame, t_cap) else t_cap)
+            T_odom_base = self.bridge.T_odom_base_at(frame.stamp_ns if self._host_clock(frame.stamp_ns, t_cap)
+                                                     else t_cap)
             if T_odom_base is not None:
                 return T_odom_base @ self.T_base_cam, "bridge"
         if frame.T_world_cam is not None and (
@@ -856,8 +868,6 @@ def _host_clock_stamp(stamp_ns: int, t_cap_ns: int) -> bool:
     return abs(int(stamp_ns) - int(t_cap_ns)) < 1_000_000_000
 
 
-def _host_clock(frame: DepthFrame, t_cap: int) -> bool:
-    return _host_clock_stamp(frame.stamp_ns, t_cap)
 
 
 def _stdin_is_tty() -> bool:
