@@ -565,6 +565,9 @@ class PoseCheck:
     yaw_error_deg: float
     ok: bool
     latency_ns: int | None  # from the first transmission of the request to the pose's arrival (MCU clock)
+    # False for a pose sent before the host's clock was synced (no STAMP_MCU_CLOCK flag): it is judged at its
+    # arrival time, so its error includes the robot's motion during the pose's latency, not only the host's error.
+    stamped: bool = True
 
 
 class McuSimulator:
@@ -935,7 +938,8 @@ class McuSimulator:
             self.counters["poses_rejected"] += 1
             self.pose_checks.append(PoseCheck(pose.request_id, pose.status, 0, math.nan, math.nan, False, latency))
             return
-        if pose.flags & PoseFlags.STAMP_MCU_CLOCK:
+        stamped = bool(pose.flags & PoseFlags.STAMP_MCU_CLOCK)
+        if stamped:
             stamp = pose.stamp_ns
         else:
             self.counters["poses_unsynced"] += 1
@@ -946,4 +950,4 @@ class McuSimulator:
         yaw_err = math.degrees(abs(math.remainder(math.atan2(T[1, 0], T[0, 0]) - yaw, 2 * math.pi)))
         ok = pos_err <= self.pose_tolerance_m and yaw_err <= self.pose_tolerance_deg
         self.counters["poses_ok" if ok else "poses_bad"] += 1
-        self.pose_checks.append(PoseCheck(pose.request_id, pose.status, stamp, pos_err, yaw_err, ok, latency))
+        self.pose_checks.append(PoseCheck(pose.request_id, pose.status, stamp, pos_err, yaw_err, ok, latency, stamped))

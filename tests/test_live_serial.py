@@ -112,8 +112,12 @@ def test_loop_relocalizes_end_to_end_with_the_simulated_firmware(tmp_path, livin
     # The MCU's request was served by a relocalization that carried its id...
     served = [r for r in summary.relocalizations if r.request_ids]
     assert served and "request" in served[0].trigger
-    # ...and every relocalized T_map_base the MCU got matches its ground truth at the pose's stamp.
-    checks = [c for c in mcu.pose_checks if c.status == PoseStatus.OK]
+    # ...and every relocalized T_map_base the MCU got matches its ground truth at the pose's stamp. A pose that left
+    # before the clocks were synced (the start-up relocalization may) carries no MCU stamp and is judged at its
+    # arrival, so the robot's motion meanwhile counts against it: those are held to the looser arrival-time bound.
+    checks = [c for c in mcu.pose_checks if c.status == PoseStatus.OK and c.stamped]
+    early = [c for c in mcu.pose_checks if c.status == PoseStatus.OK and not c.stamped]
+    assert all(c.position_error_m < 0.3 for c in early), early
     assert checks and all(c.ok for c in checks), checks
     assert all(c.position_error_m < 0.1 and c.yaw_error_deg < 2.0 for c in checks)
     # The loop's own record agrees with the camera's truth.
