@@ -27,7 +27,7 @@ capture -> pose, relocalization) over the first and the last 10 % of the run.
 
     python benchmarks/soak.py                # 100,000 frames (about 58 min at 30 Hz)
     python benchmarks/soak.py --quick        # 3,000 frames, a smoke run
-Writes benchmarks/results/soak.json (``--out NAME`` for another name).
+Writes benchmarks/results/soak.json (soak_quick.json with ``--quick``; ``--out NAME`` for another name).
 """
 
 from __future__ import annotations
@@ -451,7 +451,8 @@ def main(argv=None) -> int:
     d = SoakFaults()
     for name in SoakFaults.__dataclass_fields__:
         ap.add_argument("--" + name.replace("_", "-"), type=type(getattr(d, name)), default=getattr(d, name))
-    ap.add_argument("--out", default="soak", help="Results file stem under benchmarks/results.")
+    ap.add_argument("--out", default=None, help="Results file stem under benchmarks/results (default soak, or "
+                                                "soak_quick with --quick).")
     args = ap.parse_args(argv)
     n = 3000 if args.quick else args.frames
     faults = SoakFaults(**{k: getattr(args, k) for k in SoakFaults.__dataclass_fields__})
@@ -506,7 +507,7 @@ def main(argv=None) -> int:
     print("counts consistent, no false relocalization" if not problems else f"PROBLEMS: {problems}")
     params = {**vars(args), "frames": n, "faults": faults.__dict__,
               "note": "timings on a shared 2-core machine (other jobs running): expect noise"}
-    path = write_results(args.out, params=params, results=res)
+    path = write_results(args.out or ("soak_quick" if args.quick else "soak"), params=params, results=res)
     print(f"wrote {path}")
     return 0 if not problems else 1
 
