@@ -74,7 +74,11 @@ class PlaneSet:
         object.__setattr__(self, "sample_ptr", ptr)
         if self.gravity is not None:
             g = np.asarray(self.gravity, dtype=np.float64).reshape(3)
-            object.__setattr__(self, "gravity", g / np.linalg.norm(g))
+            with np.errstate(over="ignore", invalid="ignore"):
+                norm = float(np.linalg.norm(g))
+            if not (np.isfinite(norm) and norm > 1e-12):
+                raise ValueError(f"PlaneSet.gravity: expected a finite non-zero 3-vector, got {g.tolist()}")
+            object.__setattr__(self, "gravity", g / norm)
 
     def __len__(self) -> int:
         return int(self.normals.shape[0])

@@ -84,6 +84,16 @@ def test_planeset_shape_errors():
                                                    "sample_ptr")}, "offsets": np.zeros(2)})
 
 
+def test_planeset_gravity_is_normalised_or_refused():
+    ps = PlaneSet.empty()
+    fields = {k: getattr(ps, k) for k in ("normals", "offsets", "centroids", "counts", "radii", "areas", "covariances",
+                                          "sums", "scatters", "sample_points", "sample_ptr")}
+    np.testing.assert_allclose(PlaneSet(**fields, gravity=[0.0, 0.0, -9.81]).gravity, [0.0, 0.0, -1.0])
+    for bad in ([0.0, 0.0, 0.0], [np.nan, 0.0, -1.0], [np.inf, 0.0, 0.0], [1e300, 1e300, 0.0]):
+        with pytest.raises(ValueError, match="PlaneSet.gravity: expected a finite non-zero 3-vector"):
+            PlaneSet(**fields, gravity=bad)
+
+
 def test_intrinsics_validation_and_scaling():
     K = Intrinsics(fx=500.0, fy=-480.0, cx=319.5, cy=239.5, width=640, height=480, depth_scale=5000.0)
     half = K.scaled(320, 240)
