@@ -14,9 +14,9 @@ import os
 
 import numpy as np
 import pytest
+from helpers import write_office_sequence
 
 import reloc.atomic
-import sim
 from drivers.readers import open_sequence
 from drivers.recorder import record
 from drivers.sim_source import SimSource
@@ -24,8 +24,6 @@ from reloc.cli import main
 from reloc.live.factory import load_plane_map
 from reloc.mapping import load_map, save_map
 from reloc.mapping.plane_map import PlaneMap
-from sim.scenes import make_scene
-from sim.writer import write_sequence
 
 
 class _LimitedFile:
@@ -134,11 +132,7 @@ def test_a_recording_on_a_full_disk_stops_with_a_clear_error_and_what_was_flushe
 
 @pytest.fixture(scope="module")
 def small_sequence(tmp_path_factory):
-    out = tmp_path_factory.mktemp("seq") / "office"
-    scene = make_scene("office")
-    frames = sim.simulate_frames(scene, "handheld", 60, noise="kinect", camera="kinect", seed=5, width=160, height=120)
-    write_sequence(frames, scene, out)
-    return out
+    return write_office_sequence(tmp_path_factory.mktemp("seq") / "office", 60)
 
 
 def test_reloc_map_build_on_a_full_disk_is_one_line_and_keeps_the_previous_map(small_sequence, tmp_path, capsys,

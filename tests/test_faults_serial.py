@@ -8,6 +8,7 @@ import time
 
 import numpy as np
 import pytest
+from helpers import wait_until
 
 from drivers.sim_source import SimSource
 from firmware_bridge import HostBridge
@@ -23,13 +24,6 @@ FAST = dict(reconnect_backoff_s=(0.02, 0.05, 0.1), heartbeat_period_s=0.1, statu
 T_BASE_CAM = np.array(Config().camera.T_base_cam).reshape(4, 4)
 
 
-def wait_until(predicate, timeout_s: float = 10.0) -> bool:
-    end = time.monotonic() + timeout_s
-    while time.monotonic() < end:
-        if predicate():
-            return True
-        time.sleep(0.01)
-    return predicate()
 
 
 def settle(read, period_s: float = 0.2, timeout_s: float = 5.0) -> None:

@@ -18,13 +18,11 @@ import time
 from pathlib import Path
 
 import pytest
+from helpers import write_office_sequence
 
-import sim
 from drivers.readers import open_sequence
 from reloc.cli import main
 from reloc.mapping import load_map
-from sim.scenes import make_scene
-from sim.writer import write_sequence
 
 REPO = Path(__file__).resolve().parents[1]
 # An aborted command exits 130; when the interrupt passed through C code that ran Python source (numba compiling),
@@ -159,11 +157,7 @@ def test_reloc_record_terminated_at_once_leaves_nothing_or_a_valid_sequence(tmp_
 
 @pytest.fixture(scope="module")
 def sequence(tmp_path_factory):
-    out = tmp_path_factory.mktemp("seq") / "office"
-    scene = make_scene("office")
-    frames = sim.simulate_frames(scene, "handheld", 120, noise="kinect", camera="kinect", seed=5, width=160, height=120)
-    write_sequence(frames, scene, out)
-    return out
+    return write_office_sequence(tmp_path_factory.mktemp("seq") / "office", 120)
 
 
 def test_reloc_map_build_stopped_keeps_the_previous_map(tmp_path, sequence):

@@ -10,6 +10,7 @@ import time
 
 import numpy as np
 import pytest
+from helpers import wait_until
 
 from firmware_bridge import HostBridge, McuState, PoseStatus, RelocRequestEvent
 from firmware_bridge.link import SerialLink
@@ -19,13 +20,6 @@ from firmware_bridge.messages import Heartbeat, HostState, RelocRequest, WheelOd
 FAST = dict(reconnect_backoff_s=(0.02, 0.05, 0.1), heartbeat_period_s=0.1, status_period_s=0.5, peer_timeout_s=1.0)
 
 
-def wait_until(predicate, timeout_s: float = 10.0, period_s: float = 0.01) -> bool:
-    end = time.monotonic() + timeout_s
-    while time.monotonic() < end:
-        if predicate():
-            return True
-        time.sleep(period_s)
-    return predicate()
 
 
 class PerfectRelocalizer:

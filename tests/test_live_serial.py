@@ -12,6 +12,7 @@ import time
 import numpy as np
 import pytest
 from click.testing import CliRunner
+from helpers import wait_until
 
 from drivers.source import FrameSource, Pacer
 from firmware_bridge import HostBridge, PoseStatus
@@ -33,13 +34,6 @@ T_BASE_CAM = np.array(Config().camera.T_base_cam).reshape(4, 4)
 PATH = PlanarPath(center_m=(3.0, 1.8), amplitude_m=(1.5, 1.0), period_s=30.0)
 
 
-def wait_until(cond, timeout_s: float) -> bool:
-    end = time.monotonic() + timeout_s
-    while time.monotonic() < end:
-        if cond():
-            return True
-        time.sleep(0.01)
-    return cond()
 
 
 class RobotCamera(FrameSource):
