@@ -442,15 +442,25 @@ class Relocalizer:
         match_row, proj_row = hyps.match[b], hyps.proj[b]
         explained = float(hyps.explained[b])
         T = transform_from_rotation_translation(hyps.R[b], hyps.t[b])
+        refined, why = p.refine_iterations == 0, ""
         for _ in range(p.refine_iterations):
             T_new = self.refine(used, match_row, proj_row)
             if T_new is None:
+                why = "no least-squares pose over its matched planes (fewer than 3 agree, or they do not fix it)"
                 break
             v = self.verify(used, vs_ptr, vs_pts, T_new[None, :3, :3], T_new[None, :3, 3], hyps.cand[b: b + 1],
                             require_triplet=False)
             if not v.passed[0] or v.explained[0] < p.min_explained_fraction or v.n_matched[0] < min_matched:
+                why = f"{int(v.n_matched[0])} planes, {v.explained[0]:.2f} of the submap at the refined pose"
                 break
             T, match_row, proj_row, explained = T_new, v.match[0], v.proj[0], float(v.explained[0])
+            refined = True
+        if not refined:
+            # The winner's own pose comes from three planes and holds only within the loose search tolerances: a
+            # pose 0.14 m and 2.5 deg off matched all five planes of a soak submap whose least-squares pose (2 cm
+            # off) no longer matched its smallest plane. A pose the matched planes do not confirm is not accepted.
+            timings["refine"] = (time.perf_counter() - t0) * 1e3
+            return finish(_rejected(f"refined pose does not verify: {why}", counts, timings))
         # The refined pose must hold at tight tolerances: a true pose is precise to a centimetre, while a look-alike
         # (a desk and monitor in another room's corner) matches only within the loose search tolerances.
         v = self.verify(used, vs_ptr, vs_pts, T[None, :3, :3], T[None, :3, 3], hyps.cand[b: b + 1],
