@@ -100,8 +100,9 @@ class Recorder:
         self.summary = RecordSummary(out_dir=str(self.out))
         self._intrinsics: Intrinsics | None = None
         self._last_stamp: int | None = None
-        self._lines: dict[str, list[str]] = {"depth.txt": [], "groundtruth.txt": [], "odometry.txt": [],
-                                             "gravity.txt": []}
+        # One entry per written frame: (depth line, pose file or None, pose line, gravity line or None). A frame is
+        # added by one append, so an interrupt (Ctrl-C, SIGTERM) never leaves it in one index and not in another.
+        self._frames: list[tuple[str, str | None, str, str | None]] = []
         self._t0 = time.monotonic()
         self._closed = False
 
@@ -124,17 +125,19 @@ class Recorder:
         write_depth_png(self.out / "depth" / f"{name}.png", d, self.depth_scale)
         if frame.labels is not None:
             write_label_png(self.out / "labels" / f"{name}.png", frame.labels)
-        self._lines["depth.txt"].append(f"{name} depth/{name}.png")
+        pose_file = pose_line = gravity_line = None
         if frame.T_world_cam is not None and frame.pose_source in _POSE_FILES:
-            values = " ".join(f"{v:.9f}" for v in tum_from_transform(frame.T_world_cam))
-            self._lines[_POSE_FILES[frame.pose_source]].append(f"{name} {values}")
-            key = _POSE_FILES[frame.pose_source][:-4]
-            self.summary.with_pose[key] = self.summary.with_pose.get(key, 0) + 1
+            pose_file = _POSE_FILES[frame.pose_source]
+            pose_line = f"{name} " + " ".join(f"{v:.9f}" for v in tum_from_transform(frame.T_world_cam))
         if frame.gravity_cam is not None:
-            self._lines["gravity.txt"].append(f"{name} " + " ".join(f"{v:.9f}" for v in frame.gravity_cam))
-            self.summary.with_gravity += 1
+            gravity_line = f"{name} " + " ".join(f"{v:.9f}" for v in frame.gravity_cam)
+        self._frames.append((f"{name} depth/{name}.png", pose_file, pose_line, gravity_line))
         self._last_stamp = frame.stamp_ns
-        self.summary.frames_written += 1
+        # Counted as we go (flush() recounts from the frames, in case an interrupt fell in between).
+        self.summary.frames_written = len(self._frames)
+        if pose_file is not None:
+            self.summary.with_pose[pose_file[:-4]] = self.summary.with_pose.get(pose_file[:-4], 0) + 1
+        self.summary.with_gravity += gravity_line is not None
         if self.summary.frames_written % self.flush_every == 0:
             self.flush()
 
@@ -152,12 +155,31 @@ class Recorder:
             "odometry.txt": "# odometry (camera to odometry frame)\n# timestamp tx ty tz qx qy qz qw\n",
             "gravity.txt": "# gravity direction (unit, pointing down, camera frame)\n# timestamp gx gy gz\n",
         }
-        for fname, lines in self._lines.items():
+        self._count()
+        lines_of: dict[str, list[str]] = {"depth.txt": [], "groundtruth.txt": [], "odometry.txt": [], "gravity.txt": []}
+        for depth_line, pose_file, pose_line, gravity_line in self._frames:
+            lines_of["depth.txt"].append(depth_line)
+            if pose_file is not None:
+                lines_of[pose_file].append(pose_line)
+            if gravity_line is not None:
+                lines_of["gravity.txt"].append(gravity_line)
+        for fname, lines in lines_of.items():
             if lines:
                 atomic_write_text(self.out / fname, headers[fname] + "\n".join(lines) + "\n")
         self.summary.seconds = time.monotonic() - self._t0
         info = {"summary": self.summary.__dict__, **self.metadata}
         atomic_write_text(self.out / "recording.json", json.dumps(info, indent=2, default=str) + "\n")
+
+    def _count(self) -> None:
+        """The summary's frame, pose and gravity counts, from the frames written."""
+        self.summary.frames_written = len(self._frames)
+        with_pose: dict[str, int] = {}
+        for _, pose_file, _, _ in self._frames:
+            if pose_file is not None:
+                key = pose_file[:-4]
+                with_pose[key] = with_pose.get(key, 0) + 1
+        self.summary.with_pose = with_pose
+        self.summary.with_gravity = sum(g is not None for *_, g in self._frames)
 
     def close(self) -> RecordSummary:
         if not self._closed:

@@ -34,7 +34,11 @@ class Proc:
     """A `reloc` command in a child process, its stderr collected as it comes."""
 
     def __init__(self, *args: str):
-        self.p = subprocess.Popen([sys.executable, "-m", "reloc.cli", *args], cwd=REPO, stdin=subprocess.DEVNULL,
+        # A child started from a shell without job control (CI, `cmd &`) inherits SIGINT ignored, and Python then
+        # leaves it ignored; put back Python's own handler, as in a terminal, so the test means the same everywhere.
+        launch = ("import runpy, signal, sys; signal.signal(signal.SIGINT, signal.default_int_handler); "
+                  "sys.argv[0] = 'reloc'; runpy.run_module('reloc.cli', run_name='__main__')")
+        self.p = subprocess.Popen([sys.executable, "-c", launch, *args], cwd=REPO, stdin=subprocess.DEVNULL,
                                   stdout=subprocess.PIPE, stderr=subprocess.PIPE)
         self.err = b""
         self._reader = threading.Thread(target=self._read, daemon=True)
