@@ -80,6 +80,21 @@ class PlaneSet:
                 raise ValueError(f"PlaneSet.gravity: expected a finite non-zero 3-vector, got {g.tolist()}")
             object.__setattr__(self, "gravity", g / norm)
 
+    def check_geometry(self, name: str) -> None:
+        """Raise ``ValueError`` naming ``name`` unless every plane's geometry and statistics are finite, its normal
+        unit and its area, radius and point count >= 0 (what matching and map files rely on)."""
+        bad = [f for f in ("normals", "offsets", "centroids", "radii", "areas", "covariances", "sums", "scatters",
+                           "sample_points") if not np.all(np.isfinite(getattr(self, f)))]
+        if bad:
+            raise ValueError(f"{name}: expected finite plane geometry, got non-finite {', '.join(bad)}")
+        if len(self):
+            err = float(np.abs(np.linalg.norm(self.normals, axis=1) - 1.0).max())
+            if err > 1e-6:
+                raise ValueError(f"{name}: expected unit normals, got |n| off by up to {err:.3g}")
+            if self.areas.min() < 0 or self.radii.min() < 0 or self.counts.min() < 0:
+                raise ValueError(f"{name}: expected areas, radii and counts >= 0, got minima {self.areas.min():.3g} "
+                                 f"m^2, {self.radii.min():.3g} m and {self.counts.min()}")
+
     def __len__(self) -> int:
         return int(self.normals.shape[0])
 

@@ -29,7 +29,6 @@ from reloc.extraction.fit import MAX_COORDINATE_M
 from reloc.extraction.pipeline import extract_planes_from_points
 from reloc.mapping import MapBuilder, MappingParams
 from reloc.matching import Relocalizer
-from reloc.matching.relocalizer import check_plane_set
 from reloc.transforms import check_transform, pose_error
 from test_fuzz_common import Target, fuzz_settings, outcome
 
@@ -202,7 +201,7 @@ def _concat(a, b):
 
 def check_planes_case(planes, T_map_cam) -> None:
     try:
-        check_plane_set(planes, "planes")
+        planes.check_geometry("planes")
     except ValueError:  # corrupted on purpose: relocalization must refuse it, naming it
         try:
             relocalizer().locate(planes)

@@ -194,13 +194,8 @@ def load_map(path) -> PlaneMap:
     if meta.get("plane_count") != len(plane_map):
         raise MapFileError(path, f"corrupted: metadata says {meta.get('plane_count')} planes, arrays hold "
                                  f"{len(plane_map)}")
-    bad = [name for name in ("normals", "offsets", "centroids", "radii", "areas", "covariances", "sums", "scatters",
-                             "sample_points") if not np.all(np.isfinite(getattr(planes, name)))]
-    if bad:
-        raise MapFileError(path, f"corrupted: non-finite plane {', '.join(bad)}")
-    if len(planes) and (planes.areas.min() < 0 or planes.radii.min() < 0 or planes.counts.min() < 0):
-        raise MapFileError(path, "corrupted: negative plane areas, radii or counts")
-    norms = np.linalg.norm(planes.normals, axis=1)
-    if len(norms) and np.abs(norms - 1).max() > 1e-6:
-        raise MapFileError(path, f"corrupted: plane normals are not unit (max |n| - 1 = {np.abs(norms - 1).max():.3g})")
+    try:
+        planes.check_geometry("planes")
+    except ValueError as exc:
+        raise MapFileError(path, f"corrupted: {exc}") from None
     return plane_map

@@ -95,21 +95,6 @@ class RelocResult:
         }
 
 
-def check_plane_set(planes: PlaneSet, name: str) -> None:
-    """Raise ``ValueError`` naming ``name`` unless the planes' geometry is finite, normals unit and areas >= 0."""
-    bad = [f for f in ("normals", "offsets", "centroids", "radii", "areas", "sample_points")
-           if not np.all(np.isfinite(getattr(planes, f)))]
-    if bad:
-        raise ValueError(f"{name}: expected finite plane geometry, got non-finite {', '.join(bad)}")
-    if len(planes):
-        err = float(np.abs(np.linalg.norm(planes.normals, axis=1) - 1.0).max())
-        if err > 1e-6:
-            raise ValueError(f"{name}: expected unit normals, got |n| off by up to {err:.3g}")
-        if planes.areas.min() < 0 or planes.radii.min() < 0:
-            raise ValueError(f"{name}: expected areas and radii >= 0, got {planes.areas.min():.3g} m^2 and "
-                             f"{planes.radii.min():.3g} m")
-
-
 def _rejected(reason: str, counts: dict, timings: dict) -> RelocResult:
     return RelocResult(REJECTED, reason, None, 0.0, math.nan, np.zeros((0, 2), np.int64), 0.0, counts, timings)
 
@@ -200,7 +185,7 @@ class Relocalizer:
         planes = plane_map if isinstance(plane_map, PlaneSet) else getattr(plane_map, "planes", None)
         if not isinstance(planes, PlaneSet):
             raise ValueError(f"plane_map: expected a PlaneMap or PlaneSet, got {type(plane_map).__name__}")
-        check_plane_set(planes, "plane_map")
+        planes.check_geometry("plane_map")
         self.params = params or MatchingParams()
         self.planes = planes
         self.brute_force = brute_force
@@ -350,7 +335,7 @@ class Relocalizer:
         """Relocalize ``submap`` (planes in the latest camera frame, with gravity) in the map."""
         if not isinstance(submap, PlaneSet):
             raise ValueError(f"submap: expected a PlaneSet, got {type(submap).__name__}")
-        check_plane_set(submap, "submap")
+        submap.check_geometry("submap")
         p = self.params
         timings = {s: 0.0 for s in (*STAGES, *SUBSTAGES)}
         counts = {
