@@ -198,14 +198,18 @@ def axis_angle_from_rotation(R: np.ndarray) -> np.ndarray:
     return v * (theta / (2 * math.sin(theta)))
 
 
+# Below this rotation angle (rad) the SE(3) Jacobians use their Taylor series (truncation error ~theta^4 / 720).
+_SMALL_ANGLE = 1e-4
+
+
 def log_se3(T: np.ndarray) -> np.ndarray:
     """Logarithm of a rigid transform as the 6-vector ``[rho (translation part), phi (rotation vector)]``."""
     T = np.asarray(T, dtype=np.float64)
     phi = axis_angle_from_rotation(T[:3, :3])
     theta = float(np.linalg.norm(phi))
     K = _hat(phi)
-    if theta < 1e-8:
-        V_inv = np.eye(3) - 0.5 * K + K @ K / 12.0
+    if theta < _SMALL_ANGLE:  # series: the closed form cancels catastrophically for tiny angles
+        V_inv = np.eye(3) - 0.5 * K + (1.0 / 12.0 + theta**2 / 720.0) * K @ K
     else:
         half = 0.5 * theta
         coef = (1.0 - half * math.cos(half) / math.sin(half)) / theta**2
@@ -220,8 +224,8 @@ def exp_se3(xi: np.ndarray) -> np.ndarray:
     theta = float(np.linalg.norm(phi))
     K = _hat(phi)
     R = rotation_from_axis_angle(phi)
-    if theta < 1e-8:
-        V = np.eye(3) + 0.5 * K + K @ K / 6.0
+    if theta < _SMALL_ANGLE:  # series: 1 - cos and theta - sin lose every digit for tiny angles
+        V = np.eye(3) + (0.5 - theta**2 / 24.0) * K + (1.0 / 6.0 - theta**2 / 120.0) * K @ K
     else:
         V = np.eye(3) + (1 - math.cos(theta)) / theta**2 * K + (theta - math.sin(theta)) / theta**3 * K @ K
     return transform_from_rotation_translation(R, V @ rho)
