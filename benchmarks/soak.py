@@ -171,7 +171,7 @@ def _robot_camera(mcu, scene, T_base_cam, width: int, height: int, rate_hz: floa
                 depth, labels = render(scene, intr, T)
                 depth, labels = noise.apply(depth, labels, intr, np.random.default_rng([seed, seq]))
                 yield DepthFrame(depth, intr, now, seq, T_world_cam=T, gravity_cam=gravity_in_camera(T),
-                                 pose_source="ground_truth", labels=labels)
+                                 pose_source="groundtruth", labels=labels)
                 seq += 1
 
     return RobotCamera()

@@ -121,8 +121,7 @@ class DepthFrame:
     - ``T_world_cam``: optional 4x4 pose (ground truth or odometry; ``pose_source`` says which).
     - ``gravity_cam``: optional unit vector (3,) of gravity (pointing down) in the camera frame.
     - ``pose_source``: one of :data:`POSE_SOURCES`: "groundtruth" (a dataset's or the simulator's exact pose, the
-      name of the TUM file it is read from and written to), "odometry" or "none". The older spelling
-      "ground_truth" is accepted and stored as "groundtruth".
+      name of the TUM file it is read from and written to), "odometry" or "none".
     """
 
     depth_m: np.ndarray
@@ -159,9 +158,7 @@ class DepthFrame:
             if g.shape != (3,) or not np.isfinite(norm) or norm < 1e-9:
                 raise ValueError(f"DepthFrame.gravity_cam: expected a non-zero 3-vector, got {g.tolist()}")
             object.__setattr__(self, "gravity_cam", g / norm)
-        if self.pose_source == "ground_truth":
-            object.__setattr__(self, "pose_source", "groundtruth")
-        elif self.pose_source not in POSE_SOURCES:
+        if self.pose_source not in POSE_SOURCES:
             raise ValueError(f"DepthFrame.pose_source: expected one of {', '.join(POSE_SOURCES)}, "
                              f"got {self.pose_source!r}")
         if self.labels is not None and self.labels.shape != depth.shape:

@@ -47,7 +47,7 @@ def soak_query():
         depth, labels = render(scene, intr, T)
         depth, labels = noise.apply(depth, labels, intr, np.random.default_rng([0, k]))
         frame = DepthFrame(depth, intr, int(t * 1e9), k, T_world_cam=T, gravity_cam=gravity_in_camera(T),
-                           pose_source="ground_truth", labels=labels)
+                           pose_source="groundtruth", labels=labels)
         planes.append(visible_planes(frame, scene, noise="stereo"))
         poses.append(T)
     return make_relocalizer(plane_map, cfg), make_submap_fuser(cfg), planes, poses

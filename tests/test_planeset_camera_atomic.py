@@ -129,11 +129,10 @@ def test_depth_frame_pose_source_has_one_spelling():
     d = np.ones((3, 4), np.float32)
     for source in ("groundtruth", "odometry", "none"):
         assert DepthFrame(d, K, stamp_ns=0, pose_source=source).pose_source == source
-    # The simulator's old spelling is read as the one the readers, the recorder and the live loop use.
-    assert DepthFrame(d, K, stamp_ns=0, pose_source="ground_truth").pose_source == "groundtruth"
-    with pytest.raises(ValueError, match=r"DepthFrame.pose_source: expected one of groundtruth, odometry, none, "
-                                         r"got 'gt'"):
-        DepthFrame(d, K, stamp_ns=0, pose_source="gt")
+    for other in ("gt", "ground_truth"):  # one spelling, the one the readers, the recorder and the live loop use
+        with pytest.raises(ValueError, match=r"DepthFrame.pose_source: expected one of groundtruth, odometry, none, "
+                                             rf"got '{other}'"):
+            DepthFrame(d, K, stamp_ns=0, pose_source=other)
 
 
 def test_atomic_write_keeps_old_file_on_failure(tmp_path):

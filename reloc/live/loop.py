@@ -868,8 +868,6 @@ def _host_clock_stamp(stamp_ns: int, t_cap_ns: int) -> bool:
     return abs(int(stamp_ns) - int(t_cap_ns)) < 1_000_000_000
 
 
-
-
 def _stdin_is_tty() -> bool:
     try:
         return sys.stdin is not None and sys.stdin.isatty()
