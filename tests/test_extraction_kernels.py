@@ -327,7 +327,7 @@ def test_refinement_pass_sums_match_numpy(step):
         g.points, g.points.view(np.int32), step, True, g.start, len(g), g.keys, g.box, g.dense, g.cellmap, g.tkeys,
         g.tvals, g.counts, g.sums, g.scatters, plane_of_voxel, planes, band, 2, coeff, True, False, point_plane,
         True, True, refs, acc["w"], acc["s"], acc["S"], acc["n"], acc["sum"], acc["amb"], acc["sup"],
-        np.zeros((3, int(g.counts.max()))),
+        np.zeros((kfin.SCRATCH_ROWS, int(g.counts.max()))),
     )
     ref = _refit_sums_numpy(g.points, g.start, plane_of_voxel, planes, band, refs, coeff, step)
     assert ref["n"].min() > 100  # both planes hold points of the pass
@@ -341,3 +341,129 @@ def test_refinement_pass_sums_match_numpy(step):
         assert np.allclose(acc["sup"], ref["sup"], rtol=1e-9, atol=1e-9)
     else:
         assert np.all(point_plane < 0)  # the cheap pass assigns no point to a plane
+
+
+@pytest.mark.parametrize("stride", [1, 2, 3])
+def test_image_order_voxelization_matches_points_then_voxelize(stride):
+    """``depth_to_key_image`` + ``voxelize_key_image`` (no point list in pixel order) give the points of
+    ``depth_to_points`` grouped as ``voxelize`` groups them, with each point's pixel as its source."""
+    from reloc.extraction.backproject import depth_to_key_image
+    from reloc.extraction.voxelize import voxelize_key_image
+
+    rng = np.random.default_rng(10 + stride)
+    depth = _bad_depth(rng)
+    depth[10:14, 8:20] = 2.0  # a run of pixels in one cell
+    box = frustum_box(K_SMALL, min_depth_m=0.3, max_depth_m=8.0, voxel_size_m=0.25)
+    pts, pix = depth_to_points(depth, K_SMALL, min_depth_m=0.3, max_depth_m=8.0, pixel_stride=stride)
+    d32, pixel_key, cellcount, m = depth_to_key_image(depth, K_SMALL, box, voxel_size_m=0.25, min_depth_m=0.3,
+                                                      max_depth_m=8.0, pixel_stride=stride)
+    assert m == len(pts)
+    # Keys: -1 at invalid pixels, the dense key of floor(p / size) at the others; counts per cell.
+    v, u = np.mgrid[0:24:stride, 0:32:stride]
+    flat = (v * 32 + u).reshape(-1)
+    key_ref = np.full(flat.shape, -1, np.int64)
+    ijk = np.floor(pts.astype(np.float64) / 0.25).astype(np.int64) - box[:3]
+    key_ref[np.searchsorted(flat, pix)] = (ijk[:, 0] * box[4] + ijk[:, 1]) * box[5] + ijk[:, 2]
+    assert np.array_equal(pixel_key, key_ref)
+    assert np.array_equal(cellcount, np.bincount(key_ref[key_ref >= 0], minlength=len(cellcount)))
+    g = voxelize_key_image(d32, K_SMALL, pixel_key, cellcount, m, box, voxel_size_m=0.25, pixel_stride=stride)
+    ref = voxelize(pts, voxel_size_m=0.25)
+    assert g.source_is_pixel and not ref.source_is_pixel
+    assert np.array_equal(g.coords, ref.coords) and np.array_equal(g.start, ref.start)
+    assert np.array_equal(g.points, ref.points)  # bit for bit, in raster order inside each voxel
+    assert np.array_equal(g.source, pix[ref.source])
+    assert np.array_equal(g.counts, ref.counts)
+    assert np.allclose(g.sums, ref.sums, rtol=1e-12) and np.allclose(g.scatters, ref.scatters, rtol=1e-12)
+    assert np.array_equal(g.lookup(ref.coords), np.arange(len(ref)))
+
+
+def _multi_candidate_numpy(p, cand, planes, band, refs, coeff, ray_mode):
+    """Nearest candidate within its band of every point (first of equals), corner points (another non-parallel
+    candidate whose ray crossing is within 1.5 bands), and the refit / support sums per plane, with NumPy."""
+    from reloc.extraction._kernels_finalize import COS_CORNER, CORNER_BANDS
+
+    z = np.maximum(p[:, 2], 1e-3)
+    g = z / (coeff * z * z)
+    npd = p @ planes[cand, :3].T  # (M, nc)
+    r = npd + planes[cand, 3]
+    lo = 0.05 * z[:, None]
+    den = np.where(np.abs(npd) >= lo, npd, np.where(npd >= 0, lo, -lo))
+    e = r * g[:, None] / den
+    u = np.abs(e) if ray_mode else np.abs(r) * (g / z)[:, None]
+    ok = u <= band[cand][None, :]
+    best = np.full(len(p), -1)
+    best_u = np.full(len(p), np.inf)
+    for k in range(len(cand)):
+        better = ok[:, k] & (u[:, k] < best_u)
+        best[better] = k
+        best_u[better] = u[better, k]
+    n = len(planes)
+    out = {"point_plane": np.where(best >= 0, np.asarray(cand)[np.maximum(best, 0)], -1), "w": np.zeros(n),
+           "s": np.zeros((n, 3)), "S": np.zeros((n, 3, 3)), "n": np.zeros(n, int), "sum": np.zeros((n, 3)),
+           "amb": np.zeros(n, int), "sup": np.zeros((n, 10))}
+    up = np.triu_indices(3)
+    for i in np.flatnonzero(best >= 0):
+        k = best[i]
+        q = cand[k]
+        corner = any(o != k and planes[cand[o], :3] @ planes[q, :3] <= COS_CORNER
+                     and abs(e[i, o] - e[i, k]) < CORNER_BANDS * band[q] for o in range(len(cand)))
+        x = p[i] - refs[q]
+        out["sup"][q] += np.concatenate([[1.0], x, np.outer(x, x)[up]])
+        if corner:
+            out["amb"][q] += 1
+            continue
+        t = max(1.0 - (best_u[i] / band[q]) ** 2, 0.0)
+        w = t * t * (g[i] ** 2 if ray_mode else (g[i] / z[i]) ** 2)
+        out["w"][q] += w
+        out["s"][q] += w * x
+        out["S"][q] += w * np.outer(x, x)
+        if t > 0:
+            out["n"][q] += 1
+            out["sum"][q] += p[i]
+    return out
+
+
+@pytest.mark.parametrize("ray_mode", [True, False])
+@pytest.mark.parametrize("step", [1, 4])
+def test_multi_candidate_voxel_matches_numpy(ray_mode, step):
+    """The voxel of ``assign_points`` with several candidate planes (a corner of two walls and a third plane
+    nearly parallel to one of them), against NumPy: nearest candidate, corner points, refit and support sums."""
+    from reloc.extraction import _kernels_finalize as kfin
+
+    rng = np.random.default_rng(21)
+    coeff = 1.425e-3
+    n1 = np.array([0.0, 0.0, -1.0])
+    n2 = np.array([-1.0, 0.0, -0.3]) / np.linalg.norm([-1.0, 0.0, -0.3])
+    n3 = np.array([0.05, 0.0, -1.0]) / np.linalg.norm([0.05, 0.0, -1.0])
+    c = np.array([0.1, 0.0, 2.0])
+    planes = np.array([np.r_[n, -n @ c] for n in (n1, n2, n3)] + [[0.0, -1.0, 0.0, 1.5]])
+    pts = np.concatenate([_plane_points(rng, 300, n, -n @ c, 0.006, extent=0.12, centre=c) for n in (n1, n2)]
+                         + [c + rng.uniform(-0.12, 0.12, size=(40, 3))]).astype(np.float32)
+    m = len(pts)
+    cand = np.array([0, 1, 2, 3], np.int64)
+    band = np.array([4.0, 5.0, 4.0, 4.0])
+    refs = np.array([[0.0, 0.0, 2.0], [0.1, 0.0, 2.0], [0.0, 0.1, 2.0], [0.0, 0.0, 0.0]])
+    n_planes = len(planes)
+    acc = dict(w=np.zeros(n_planes), s=np.zeros((n_planes, 3)), S=np.zeros((n_planes, 3, 3)),
+               n=np.zeros(n_planes, np.int64), sum=np.zeros((n_planes, 3)), amb=np.zeros(n_planes, np.int64),
+               sup=np.zeros((n_planes, 10)))
+    point_plane = np.full(m, -7, np.int32)
+    n_in = kfin._multi_plane_voxel(
+        pts, pts.view(np.int32), step, True, 0, m, cand, len(cand), planes, band, 2, coeff, ray_mode, point_plane, True,
+        True, refs, acc["w"], acc["s"], acc["S"], acc["n"], acc["sum"], acc["amb"], acc["sup"],
+        np.zeros((kfin.SCRATCH_ROWS, m)), np.zeros((kfin.MAX_CANDIDATES, kfin.MAX_CANDIDATES), np.bool_))
+    ref = _multi_candidate_numpy(pts[::step].astype(np.float64), cand, planes, band, refs, coeff, ray_mode)
+    assert n_in == int((ref["point_plane"] >= 0).sum())
+    assert ref["n"][0] > 20 and ref["n"][1] > 20 and ref["amb"].sum() > 5  # both walls fit, corner points seen
+    wmax = ref["w"].max()
+    assert np.allclose(acc["w"], ref["w"], rtol=1e-9)
+    assert np.allclose(acc["s"][:, :], ref["s"], rtol=1e-9, atol=1e-9 * wmax)
+    assert np.allclose(np.triu(acc["S"][0]), np.triu(ref["S"][0]), rtol=1e-9, atol=1e-9 * wmax)
+    assert np.allclose(np.triu(acc["S"][1]), np.triu(ref["S"][1]), rtol=1e-9, atol=1e-9 * wmax)
+    assert np.array_equal(acc["n"], ref["n"]) and np.array_equal(acc["amb"], ref["amb"])
+    assert np.allclose(acc["sum"], ref["sum"], rtol=1e-9)
+    if step == 1:
+        assert np.array_equal(point_plane, ref["point_plane"])
+        assert np.allclose(acc["sup"], ref["sup"], rtol=1e-9, atol=1e-9)
+    else:
+        assert np.all(point_plane == -7)  # the cheap pass assigns nothing

@@ -19,6 +19,9 @@ from reloc.extraction._kernels_voxel import voxel_lookup
 from reloc.extraction._kernels_voxelfit import _keep
 
 MAX_CANDIDATES = 8
+# Rows of the float64 scratch of assign_points: x, y, z, g, u, nearest candidate, then e_k per candidate.
+SCR_E = 6
+SCRATCH_ROWS = SCR_E + MAX_CANDIDATES
 # Candidates closer than this in angle (cos 20 deg) are not treated as a corner by the refit.
 COS_CORNER = 0.94
 CORNER_BANDS = 1.5
@@ -74,7 +77,8 @@ def _subsample_voxel(sorted_pts, point_bits, step, by_order, a, b, q, planes, ba
                      use_noise, refs, acc_w, acc_s, acc_S, acc_n, acc_sum, scratch):
     """The refit sums of :func:`_single_plane_voxel` from about 1 in ``step`` points only (every ``step``-th in
     order with ``by_order``, else by the coordinate hash); assigns nothing. As there, the distances first (into
-    ``scratch`` (3, >= b - a): point index, ``u``, ``g``), then branch-free sums that vectorise."""
+    ``scratch`` (5, >= b - a): the point's x, y, z, ``u``, ``g``), then branch-free sums over those contiguous rows
+    that vectorise."""
     nx = planes[q, 0]
     ny = planes[q, 1]
     nz = planes[q, 2]
@@ -97,24 +101,25 @@ def _subsample_voxel(sorted_pts, point_bits, step, by_order, a, b, q, planes, ba
         an = abs(npd)
         lo = MIN_INCIDENCE * zz
         den = (an if an > lo else lo) if ray_mode else zz
-        scratch[0, k] = j
-        scratch[1, k] = abs(npd + d) * g / den
-        scratch[2, k] = g
+        scratch[0, k] = px
+        scratch[1, k] = py
+        scratch[2, k] = pz
+        scratch[3, k] = abs(npd + d) * g / den
+        scratch[4, k] = g
         k += 1
     W = s0 = s1 = s2 = s3 = s4 = s5 = s6 = s7 = s8 = 0.0
     c0 = c1 = c2 = cn = 0.0
     for i in range(k):
-        j = int(scratch[0, i])
-        px = np.float64(sorted_pts[j, 0])
-        py = np.float64(sorted_pts[j, 1])
-        pz = np.float64(sorted_pts[j, 2])
-        u = scratch[1, i]
+        px = scratch[0, i]
+        py = scratch[1, i]
+        pz = scratch[2, i]
+        u = scratch[3, i]
         t = 1.0 - u * u * inv_b2
         t = t if t > 0.0 else 0.0
         w = t * t
         if use_noise:
             zz = pz if pz > MIN_DEPTH else MIN_DEPTH
-            g = scratch[2, i]
+            g = scratch[4, i]
             w *= g * g if ray_mode else g * g / (zz * zz)
         x = px - rx
         y = py - ry
@@ -258,55 +263,112 @@ def _single_plane_voxel(sorted_pts, a, b, q, planes, band, power, coeff, ray_mod
 
 
 @njit(error_model="numpy")
-def _multi_plane_voxel(sorted_pts, a, b, cand, nc, planes, band, power, coeff, ray_mode, point_plane, accumulate,
-                       use_noise, refs, acc_w, acc_s, acc_S, acc_n, acc_sum, acc_amb, sup, scratch, e):
-    """:func:`assign_points` for a voxel with several candidate planes, in two phases: each point's nearest
-    candidate and whether it is near a corner (scalar), then, per candidate, the masked sums of its points
-    (vectorised, as in :func:`_single_plane_voxel`). ``scratch`` (3, >= b - a), ``e`` (MAX_CANDIDATES,)."""
-    n_in = 0
-    for j in range(a, b):
-        px = np.float64(sorted_pts[j, 0])
-        py = np.float64(sorted_pts[j, 1])
-        pz = np.float64(sorted_pts[j, 2])
-        zz = pz if pz > MIN_DEPTH else MIN_DEPTH
-        g = zz / _sigma_z(zz, power, coeff)
-        best = -1
-        best_u = np.inf
-        for k in range(nc):
-            q = cand[k]
-            npd = planes[q, 0] * px + planes[q, 1] * py + planes[q, 2] * pz
-            r = npd + planes[q, 3]
+def _gather_points(sorted_pts, point_bits, step, by_order, a, b, scratch):
+    """The points of a voxel (``step`` 1), or about 1 in ``step`` of them (as :func:`_subsample_voxel`), as float64
+    rows ``scratch[0:3]`` (x, y, z); returns how many."""
+    k = 0
+    if step == 1:
+        for j in range(a, b):
+            scratch[0, k] = sorted_pts[j, 0]
+            scratch[1, k] = sorted_pts[j, 1]
+            scratch[2, k] = sorted_pts[j, 2]
+            k += 1
+        return k
+    for j in range(a, b, step if by_order else 1):
+        if not by_order and not _keep(point_bits, j, step):
+            continue
+        scratch[0, k] = sorted_pts[j, 0]
+        scratch[1, k] = sorted_pts[j, 1]
+        scratch[2, k] = sorted_pts[j, 2]
+        k += 1
+    return k
+
+
+@njit(error_model="numpy")
+def _nearest_candidates(scratch, mloc, cand, nc, planes, band, power, coeff, ray_mode):
+    """For the ``mloc`` points in ``scratch[0:3]``: ``g = z / sigma_z`` (row 3), per candidate ``k`` the signed depth
+    error over sigma ``e_k`` (row ``SCR_E + k``), and the nearest candidate within its band (row 5, -1 for none)
+    with its distance ``u`` in sigmas (row 4, inf for none). Loops over points without a branch (they vectorise);
+    ties go to the first candidate, as a scalar scan over the candidates would."""
+    for i in range(mloc):
+        zz = scratch[2, i]
+        zz = zz if zz > MIN_DEPTH else MIN_DEPTH
+        scratch[3, i] = zz / _sigma_z(zz, power, coeff)
+        scratch[4, i] = np.inf
+        scratch[5, i] = -1.0
+    for k in range(nc):
+        q = cand[k]
+        nx = planes[q, 0]
+        ny = planes[q, 1]
+        nz = planes[q, 2]
+        d = planes[q, 3]
+        bq = band[q]
+        kf = np.float64(k)
+        row = SCR_E + k
+        for i in range(mloc):
+            px = scratch[0, i]
+            py = scratch[1, i]
+            pz = scratch[2, i]
+            zz = pz if pz > MIN_DEPTH else MIN_DEPTH
+            g = scratch[3, i]
+            npd = nx * px + ny * py + nz * pz
+            r = npd + d
             lo = MIN_INCIDENCE * zz
             den = npd if abs(npd) >= lo else (lo if npd >= 0.0 else -lo)
-            e[k] = r * g / den
-            u = abs(e[k]) if ray_mode else abs(r) * g / zz
-            if u <= band[cand[k]] and u < best_u:
-                best_u = u
-                best = k
+            e = r * g / den
+            scratch[row, i] = e
+            u = abs(e) if ray_mode else abs(r) * g / zz
+            better = u <= bq and u < scratch[4, i]
+            scratch[4, i] = u if better else scratch[4, i]
+            scratch[5, i] = kf if better else scratch[5, i]
+
+
+@njit(error_model="numpy")
+def _multi_plane_voxel(sorted_pts, point_bits, step, by_order, a, b, cand, nc, planes, band, power, coeff, ray_mode,
+                       point_plane, accumulate, use_noise, refs, acc_w, acc_s, acc_S, acc_n, acc_sum, acc_amb, sup,
+                       scratch, parallel):
+    """:func:`assign_points` for a voxel with several candidate planes (all its points, or about 1 in ``step`` of
+    them for a cheap refit pass, which assigns nothing). In phases over a float64 copy of the points in ``scratch``
+    (``SCRATCH_ROWS``, >= b - a): the nearest candidate of every point (:func:`_nearest_candidates`, vectorised),
+    whether it is near a corner (scalar, from the stored depth errors), then per candidate the masked sums of its
+    points (:func:`_masked_sums`, vectorised). ``parallel`` (MAX_CANDIDATES, MAX_CANDIDATES) bool scratch.
+    Returns the number of points assigned."""
+    mloc = _gather_points(sorted_pts, point_bits, step, by_order, a, b, scratch)
+    _nearest_candidates(scratch, mloc, cand, nc, planes, band, power, coeff, ray_mode)
+    if accumulate:
+        # Nearly parallel candidates are pieces of one surface (fragments that merge later), not a corner.
+        for k in range(nc):
+            for o in range(nc):
+                q = cand[k]
+                c = cand[o]
+                parallel[k, o] = (planes[c, 0] * planes[q, 0] + planes[c, 1] * planes[q, 1]
+                                  + planes[c, 2] * planes[q, 2]) > COS_CORNER
+    n_in = 0
+    for i in range(mloc):
+        best = int(scratch[5, i])
+        if best < 0:
+            if step == 1:
+                point_plane[a + i] = -1
+            continue
+        q = cand[best]
+        if step == 1:
+            point_plane[a + i] = q
+        n_in += 1
+        if not accumulate:
+            continue
+        eb = scratch[SCR_E + best, i]
+        lim = CORNER_BANDS * band[q]
         amb = False
-        if best >= 0:
-            q = cand[best]
-            point_plane[j] = q
-            n_in += 1
-            for k in range(nc if accumulate else 0):
-                o = cand[k]
-                if k == best:
-                    continue
-                # Nearly parallel candidates are pieces of one surface (fragments that merge later), not a corner.
-                if (planes[o, 0] * planes[q, 0] + planes[o, 1] * planes[q, 1] + planes[o, 2] * planes[q, 2]
-                        > COS_CORNER):
-                    continue
-                if abs(e[k] - e[best]) < CORNER_BANDS * band[q]:
-                    amb = True
-                    break
-            if amb:
-                acc_amb[q] += 1
-        else:
-            point_plane[j] = -1
-        scratch[0, j - a] = best_u
-        # The nearest candidate, shifted past the candidates for a corner point; and g for the weight.
-        scratch[1, j - a] = best + (MAX_CANDIDATES + 1 if amb else 0)
-        scratch[2, j - a] = g
+        for k in range(nc):
+            if k == best or parallel[best, k]:
+                continue
+            if abs(scratch[SCR_E + k, i] - eb) < lim:
+                amb = True
+                break
+        if amb:
+            acc_amb[q] += 1
+            # The nearest candidate, shifted past the candidates for a corner point.
+            scratch[5, i] = best + MAX_CANDIDATES + 1
     if not accumulate:
         return n_in
     for k in range(nc):
@@ -317,7 +379,7 @@ def _multi_plane_voxel(sorted_pts, a, b, cand, nc, planes, band, power, coeff, r
         ry = refs[q, 1]
         rz = refs[q, 2]
         W, s0, s1, s2, s3, s4, s5, s6, s7, s8, c0, c1, c2, cn, h = _masked_sums(
-            sorted_pts, a, b, k, scratch, inv_b2, rx, ry, rz, power, coeff, ray_mode, use_noise)
+            scratch, mloc, k, inv_b2, rx, ry, rz, ray_mode, use_noise)
         acc_w[q] += W
         acc_s[q, 0] += s0
         acc_s[q, 1] += s1
@@ -332,36 +394,37 @@ def _multi_plane_voxel(sorted_pts, a, b, cand, nc, planes, band, power, coeff, r
         acc_sum[q, 0] += c0
         acc_sum[q, 1] += c1
         acc_sum[q, 2] += c2
-        for i in range(10):
-            sup[q, i] += h[i]
+        if step == 1:
+            for i in range(10):
+                sup[q, i] += h[i]
     return n_in
 
 
 @njit(fastmath={"reassoc", "contract"}, error_model="numpy")
-def _masked_sums(sorted_pts, a, b, k, scratch, inv_b2, rx, ry, rz, power, coeff, ray_mode, use_noise):
-    """Refit and support sums of the points of a voxel whose nearest candidate is ``k`` (see
-    :func:`_multi_plane_voxel`: ``scratch`` rows ``u``, the candidate (``+ MAX_CANDIDATES + 1`` at a corner) and
-    ``g``); corner points count for the support, not for the refit."""
+def _masked_sums(scratch, mloc, k, inv_b2, rx, ry, rz, ray_mode, use_noise):
+    """Refit and support sums of the points whose nearest candidate is ``k`` (see :func:`_multi_plane_voxel`:
+    ``scratch`` rows x, y, z, ``g``, ``u``, the candidate (``+ MAX_CANDIDATES + 1`` at a corner)); corner points
+    count for the support, not for the refit."""
     W = s0 = s1 = s2 = s3 = s4 = s5 = s6 = s7 = s8 = 0.0
     c0 = c1 = c2 = cn = 0.0
     h0 = h1 = h2 = h3 = h4 = h5 = h6 = h7 = h8 = h9 = 0.0
     kf = np.float64(k)
     kc = np.float64(k + MAX_CANDIDATES + 1)
-    for j in range(a, b):
-        code = scratch[1, j - a]
+    for i in range(mloc):
+        code = scratch[5, i]
         fit = 1.0 if code == kf else 0.0
         mine = fit + (1.0 if code == kc else 0.0)
-        px = np.float64(sorted_pts[j, 0])
-        py = np.float64(sorted_pts[j, 1])
-        pz = np.float64(sorted_pts[j, 2])
-        u = scratch[0, j - a]
+        px = scratch[0, i]
+        py = scratch[1, i]
+        pz = scratch[2, i]
+        u = scratch[4, i]
         u = u if mine > 0.0 else 0.0  # u is inf where the point has no plane
         t = 1.0 - u * u * inv_b2
         t = t if t > 0.0 else 0.0
         w = t * t * fit
         if use_noise:
             zz = pz if pz > MIN_DEPTH else MIN_DEPTH
-            g = scratch[2, j - a]
+            g = scratch[3, i]
             w *= g * g if ray_mode else g * g / (zz * zz)
         x = px - rx
         y = py - ry
@@ -455,10 +518,10 @@ def assign_points(sorted_pts, point_bits, step, by_order, voxel_start, nv, voxel
     ``step > 1`` (a power of two, with ``accumulate``) is a cheap refit pass: only about 1 in ``step`` points, every
     ``step``-th of each voxel with ``by_order`` (a depth image's fixed raster order), else chosen by a hash of their
     coordinates (``point_bits`` = ``sorted_pts`` viewed as int32) so that the order of a point cloud does not matter;
-    ``point_plane`` is not written. ``scratch`` (3, >= the largest voxel) float64.
+    ``point_plane`` is not written. ``scratch`` (``SCRATCH_ROWS``, >= the largest voxel) float64.
     """
     cand = np.empty(MAX_CANDIDATES, np.int64)
-    e = np.empty(MAX_CANDIDATES)
+    parallel = np.empty((MAX_CANDIDATES, MAX_CANDIDATES), np.bool_)
     n_planes = planes.shape[0]
     if accumulate:
         for p in range(n_planes):
@@ -492,94 +555,9 @@ def assign_points(sorted_pts, point_bits, step, by_order, voxel_start, nv, voxel
                                               point_plane, accumulate, use_noise, refs, acc_w, acc_s, acc_S, acc_n,
                                               acc_sum, sup, scratch)
             continue
-        if step == 1:
-            n_assigned += _multi_plane_voxel(sorted_pts, a, b, cand, nc, planes, band, power, coeff, ray_mode,
-                                             point_plane, accumulate, use_noise, refs, acc_w, acc_s, acc_S, acc_n,
-                                             acc_sum, acc_amb, sup, scratch, e)
-            continue
-        for j in range(a, b):
-            if step > 1:
-                if by_order:
-                    if (j - a) & (step - 1) != 0:
-                        continue
-                elif not _keep(point_bits, j, step):
-                    continue
-            px = np.float64(sorted_pts[j, 0])
-            py = np.float64(sorted_pts[j, 1])
-            pz = np.float64(sorted_pts[j, 2])
-            zz = max(pz, MIN_DEPTH)
-            g = zz / _sigma_z(zz, power, coeff)
-            best = -1
-            best_u = np.inf
-            for k in range(nc):
-                q = cand[k]
-                npd = planes[q, 0] * px + planes[q, 1] * py + planes[q, 2] * pz
-                r = npd + planes[q, 3]
-                den = npd if abs(npd) >= MIN_INCIDENCE * zz else (MIN_INCIDENCE * zz if npd >= 0.0 else -MIN_INCIDENCE * zz)
-                e[k] = r * g / den
-                u = abs(e[k]) if ray_mode else abs(r) * g / zz
-                if u <= band[q] and u < best_u:
-                    best_u = u
-                    best = k
-            if best < 0:
-                point_plane[j] = -1
-                continue
-            q = cand[best]
-            point_plane[j] = q
-            n_assigned += 1
-            if not accumulate:
-                continue
-            x = px - refs[q, 0]
-            y = py - refs[q, 1]
-            z = pz - refs[q, 2]
-            sup[q, 0] += 1.0
-            sup[q, 1] += x
-            sup[q, 2] += y
-            sup[q, 3] += z
-            sup[q, 4] += x * x
-            sup[q, 5] += x * y
-            sup[q, 6] += x * z
-            sup[q, 7] += y * y
-            sup[q, 8] += y * z
-            sup[q, 9] += z * z
-            ambiguous = False
-            for k in range(nc):
-                o = cand[k]
-                if k == best:
-                    continue
-                # Nearly parallel candidates are pieces of one surface (fragments that merge later), not a corner.
-                if (planes[o, 0] * planes[q, 0] + planes[o, 1] * planes[q, 1] + planes[o, 2] * planes[q, 2]
-                        > COS_CORNER):
-                    continue
-                if abs(e[k] - e[best]) < CORNER_BANDS * band[q]:
-                    ambiguous = True
-                    break
-            if ambiguous:
-                acc_amb[q] += 1
-                continue
-            t = 1.0 - best_u * best_u / (band[q] * band[q])
-            if t <= 0.0:
-                continue
-            w = t * t
-            if use_noise:
-                w *= g * g if ray_mode else g * g / (zz * zz)
-            qx = px - refs[q, 0]
-            qy = py - refs[q, 1]
-            qz = pz - refs[q, 2]
-            acc_w[q] += w
-            acc_n[q] += 1
-            acc_sum[q, 0] += px
-            acc_sum[q, 1] += py
-            acc_sum[q, 2] += pz
-            acc_s[q, 0] += w * qx
-            acc_s[q, 1] += w * qy
-            acc_s[q, 2] += w * qz
-            acc_S[q, 0, 0] += w * qx * qx
-            acc_S[q, 0, 1] += w * qx * qy
-            acc_S[q, 0, 2] += w * qx * qz
-            acc_S[q, 1, 1] += w * qy * qy
-            acc_S[q, 1, 2] += w * qy * qz
-            acc_S[q, 2, 2] += w * qz * qz
+        n_assigned += _multi_plane_voxel(sorted_pts, point_bits, step, by_order, a, b, cand, nc, planes, band, power,
+                                         coeff, ray_mode, point_plane, accumulate, use_noise, refs, acc_w, acc_s,
+                                         acc_S, acc_n, acc_sum, acc_amb, sup, scratch, parallel)
     if accumulate:
         for p in range(n_planes):
             acc_S[p, 1, 0] = acc_S[p, 0, 1]
@@ -703,15 +681,16 @@ def plane_stats(sorted_pts, point_plane, m, counts, sums, scatters):
 
 @njit(error_model="numpy")
 def plane_extent(sorted_pts, point_plane, m, centroids, tb, area_cell, area_grid, area_off, occupied, sample_cell,
-                 sample_grid, sample_off, sample_acc, radii, areas, with_labels, sorted_src, pix, remap, width, height,
-                 stride, labels):
+                 sample_grid, sample_off, sample_acc, radii, areas, with_labels, sorted_src, src_is_pixel, pix, remap,
+                 width, height, stride, labels):
     """One pass over the supporting points: radius of each plane (largest distance from its centroid), its occupied
     ``area_cell`` squares (``areas`` = their number times ``area_cell^2``), per-cell point sums for the samples
     (``sample_acc`` rows ``[n, sx, sy, sz]``) and, ``with_labels``, the label image (H * W,) int32: ``remap[plane]``
     at the pixel of every supporting point (the whole ``stride x stride`` block it stands for), -1 elsewhere.
 
     Grids from :func:`plane_grids` (``tb`` the tangent bases), ``area_off`` / ``sample_off`` (P + 1,) the offsets of
-    each plane's cells into ``occupied`` (uint8) / ``sample_acc``; outputs zeroed here. The grids contain every
+    each plane's cells into ``occupied`` (uint8) / ``sample_acc``; outputs zeroed here. The pixel of point ``j`` is
+    ``sorted_src[j]`` itself with ``src_is_pixel`` (a grid made from the image), else ``pix[sorted_src[j]]``. The grids contain every
     supporting point by construction; a point outside would be clamped to the border cell.
     """
     n_planes = tb.shape[0]
@@ -770,7 +749,7 @@ def plane_extent(sorted_pts, point_plane, m, centroids, tb, area_cell, area_grid
         sample_acc[c, 3] += z
         if not with_labels:
             continue
-        k = pix[sorted_src[j]]
+        k = sorted_src[j] if src_is_pixel else pix[sorted_src[j]]
         if stride == 1:
             labels[k] = q
             continue
@@ -879,7 +858,7 @@ def _warmup() -> None:
             assign_points(pts, pts.view(np.int32), step, by_order, start, 2, vkey, box, dense, cellmap, tk, tv,
                           np.array([15, 15], np.int64), pts[:2].astype(np.float64) * 15, np.tile(np.eye(3), (2, 1, 1)) * 60,
                           np.array([0, -1], np.int32), planes, np.array([4.0]), 2, 1.425e-3, True, True, pp, True, True,
-                          refs, aw, a_s, aS, an, asum, amb, np.zeros((1, 10)), np.empty((3, m)))
+                          refs, aw, a_s, aS, an, asum, amb, np.zeros((1, 10)), np.empty((SCRATCH_ROWS, m)))
     for ray in (True, False):
         solve_planes(aw, a_s, aS, refs, ray, planes.copy(), np.zeros((1, 4)), np.zeros((1, 3, 3)))
     counts = np.zeros(1, np.int64)
@@ -901,9 +880,10 @@ def _warmup() -> None:
     labels = np.empty(20, np.int32)
     cent = sums / max(counts[0], 1)
     for stride in (1, 2):
-        plane_extent(pts, pp, m, cent, tb, 0.1, ag, aoff, occ, 0.1, sg, soff, acc, np.zeros(1), areas, True,
-                     np.arange(m).astype(np.int32) % 20, np.arange(20).astype(np.int32), np.array([0], np.int32), 5, 4,
-                     stride, labels)
+        for src_is_pixel in (False, True):
+            plane_extent(pts, pp, m, cent, tb, 0.1, ag, aoff, occ, 0.1, sg, soff, acc, np.zeros(1), areas, True,
+                         np.arange(m).astype(np.int32) % 20, src_is_pixel, np.arange(20).astype(np.int32),
+                         np.array([0], np.int32), 5, 4, stride, labels)
     sp = np.zeros((max(ns, 1), 3), np.float32)
     ptr = np.zeros(2, np.int64)
     collect_samples(acc, soff, np.array([0], np.int64), sp, ptr)

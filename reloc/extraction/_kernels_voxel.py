@@ -84,6 +84,154 @@ def backproject_keys(depth, fx, fy, cx, cy, stride, z_min, z_max, inv_size, box,
 
 
 @njit(error_model="numpy")
+def _row_keys(depth, v, stride, yf, cx, inv_fx, z_min, z_max, inv_size, bx, by, bz, nyz, nz, ncell, pixel_key, i0):
+    """Keys of the pixels of row ``v`` (see :func:`key_image`) into ``pixel_key[i0:]``, without a branch: the loop
+    vectorises (6x faster than a scalar one)."""
+    w = depth.shape[1]
+    if stride == 1:
+        for u in range(w):
+            z = depth[v, u]
+            ok = z > 0.0 and z >= z_min and z <= z_max
+            px = np.float32((u - cx) * inv_fx * z)
+            py = np.float32(yf * z)
+            k = int(px * inv_size - bx) * nyz + int(py * inv_size - by) * nz + int(z * inv_size - bz)
+            inside = k >= 0 and k < ncell
+            pixel_key[i0 + u] = (k if inside else 0) if ok else -1
+        return
+    for iu in range((w + stride - 1) // stride):
+        u = iu * stride
+        z = depth[v, u]
+        ok = z > 0.0 and z >= z_min and z <= z_max
+        px = np.float32((u - cx) * inv_fx * z)
+        py = np.float32(yf * z)
+        k = int(px * inv_size - bx) * nyz + int(py * inv_size - by) * nz + int(z * inv_size - bz)
+        inside = k >= 0 and k < ncell
+        pixel_key[i0 + iu] = (k if inside else 0) if ok else -1
+
+
+@njit(error_model="numpy")
+def _image_keys(depth, stride, fy, cx, cy, inv_fx, z_min, z_max, inv_size, bx, by, bz, nyz, nz, ncell, pixel_key):
+    h, w = depth.shape
+    if stride == 1:
+        for v in range(h):
+            yf = (v - cy) / fy
+            i0 = v * w
+            for u in range(w):
+                z = depth[v, u]
+                ok = z > 0.0 and z >= z_min and z <= z_max
+                px = np.float32((u - cx) * inv_fx * z)
+                py = np.float32(yf * z)
+                k = int(px * inv_size - bx) * nyz + int(py * inv_size - by) * nz + int(z * inv_size - bz)
+                inside = k >= 0 and k < ncell
+                pixel_key[i0 + u] = (k if inside else 0) if ok else -1
+        return
+    wr = (w + stride - 1) // stride
+    i0 = 0
+    for v in range(0, h, stride):
+        _row_keys(depth, v, stride, (v - cy) / fy, cx, inv_fx, z_min, z_max, inv_size, bx, by, bz, nyz, nz, ncell,
+                  pixel_key, i0)
+        i0 += wr
+
+
+@njit(error_model="numpy")
+def _count_runs(pixel_key, n, cellcount):
+    """Points per cell of the keys ``pixel_key[:n]`` (-1 skipped) added to ``cellcount``; returns how many keys.
+    Neighbouring pixels mostly share a cell: a run is counted in a register, not through memory."""
+    m = 0
+    last = -1
+    run = 0
+    for i in range(n):
+        k = pixel_key[i]
+        if k < 0:
+            continue
+        m += 1
+        if k != last:
+            if last >= 0:
+                cellcount[last] += run
+            last = k
+            run = 0
+        run += 1
+    if last >= 0:
+        cellcount[last] += run
+    return m
+
+
+@njit(error_model="numpy")
+def key_image(depth, fx, fy, cx, cy, stride, z_min, z_max, inv_size, box, pixel_key, cellcount):
+    """First pass of the image-order voxelization: the dense voxel key of every ``stride``-th pixel of ``depth``
+    (H, W) float32 into ``pixel_key`` (ceil(H/stride) * ceil(W/stride),) int32, -1 where the depth is invalid (as
+    :func:`backproject`), and the points per cell into ``cellcount`` (``nx*ny*nz`` int32, zeroed here). No point
+    is stored: :func:`scatter_image` computes them again, straight into their voxel's place. Returns the number
+    of valid pixels. Keys as :func:`backproject_keys` (clamped to the box, which must hold every valid point)."""
+    ncell = box[3] * box[4] * box[5]
+    for c in range(ncell):
+        cellcount[c] = 0
+    h, w = depth.shape
+    wr = (w + stride - 1) // stride
+    inv_fx = 1.0 / fx
+    _image_keys(depth, stride, fy, cx, cy, inv_fx, z_min, z_max, inv_size, float(box[0]), float(box[1]),
+                float(box[2]), box[4] * box[5], box[5], ncell, pixel_key)
+    return _count_runs(pixel_key, ((h + stride - 1) // stride) * wr, cellcount)
+
+
+@njit(error_model="numpy")
+def scatter_image(depth, fx, fy, cx, cy, stride, pixel_key, cellmap, box, voxel_key, voxel_start, sorted_pts,
+                  sorted_src):
+    """Second pass of the image-order voxelization: every valid pixel's point (as :func:`backproject`) written
+    straight to its voxel's place. ``cellmap`` holds the points per cell on entry (from :func:`key_image`) and the
+    voxel id of each cell on return; outputs as :func:`scatter_dense`, except that ``sorted_src`` holds each
+    point's flat pixel index ``v * W + u`` (points of a voxel in raster order). Returns the number of voxels."""
+    ncell = box[3] * box[4] * box[5]
+    nv = 0
+    run = 0
+    for c in range(ncell):
+        cnt = cellmap[c]
+        if cnt > 0:
+            voxel_key[nv] = c
+            voxel_start[nv] = run
+            run += cnt
+            cellmap[c] = nv
+            nv += 1
+        else:
+            cellmap[c] = EMPTY
+    voxel_start[nv] = run
+    cursor = np.empty(nv, np.int64)
+    for v in range(nv):
+        cursor[v] = voxel_start[v]
+    h, w = depth.shape
+    inv_fx = 1.0 / fx
+    wr = (w + stride - 1) // stride
+    # (u - cx) / fx once per column: the same float64 product as in backproject, so the same float32 points.
+    xf = np.empty(wr)
+    for iu in range(wr):
+        xf[iu] = (iu * stride - cx) * inv_fx
+    last = -1
+    j = 0
+    i = 0
+    for v in range(0, h, stride):
+        yf = (v - cy) / fy
+        row = v * w
+        for iu in range(wr):
+            key = pixel_key[i + iu]
+            if key < 0:
+                continue
+            if key != last:
+                # Runs of pixels of one cell advance a register, not the cell's cursor in memory.
+                if last >= 0:
+                    cursor[cellmap[last]] = j
+                last = key
+                j = cursor[cellmap[key]]
+            z = depth[v, iu * stride]
+            sorted_pts[j, 0] = np.float32(xf[iu] * z)
+            sorted_pts[j, 1] = np.float32(yf * z)
+            sorted_pts[j, 2] = z
+            sorted_src[j] = row + iu * stride
+            j += 1
+        i += wr
+    return nv
+
+
+@njit(error_model="numpy")
 def count_keys(pts, m, inv_size, box, point_key, cellcount):
     """Dense voxel key of each of ``pts[:m]`` into ``point_key`` and points per cell into ``cellcount`` (zeroed)."""
     ncell = box[3] * box[4] * box[5]
@@ -314,6 +462,10 @@ def _warmup() -> None:
     cellmap = np.empty(int(b[3] * b[4] * b[5]), np.int32)
     pkey = np.empty(m, np.int64)
     backproject_keys(depth, 5.0, 5.0, 2.0, 1.5, 1, 0.1, 10.0, 4.0, b, pts, pix, pkey, cellmap)
+    pkey32 = np.empty(20, np.int32)
+    key_image(depth, 5.0, 5.0, 2.0, 1.5, 1, 0.1, 10.0, 4.0, b, pkey32, cellmap)
+    scatter_image(depth, 5.0, 5.0, 2.0, 1.5, 1, pkey32, cellmap, b, np.empty(m, np.int64), np.empty(m + 1, np.int64),
+                  np.empty((m, 3), np.float32), np.empty(m, np.int32))
     count_keys(pts, m, 4.0, b, pkey, cellmap)
     vkey = np.empty(m, np.int64)
     vstart = np.empty(m + 1, np.int64)

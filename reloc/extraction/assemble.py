@@ -45,7 +45,8 @@ def assemble_plane_set(
     scale, at least 1) noise sigmas of it, plus (``refine_boundary``) points of neighbouring voxels without a plane
     that fall in its band. Planes with fewer than ``min_plane_points`` supporting points or a smaller area than
     ``min_plane_area_m2`` are dropped; the rest are ordered by point count (largest first).
-    ``pixels`` (M,) int32 (the flat pixel index of each input point) and ``image_shape`` make the label image.
+    ``pixels`` (M,) int32 (the flat pixel index of each input point) and ``image_shape`` make the label image;
+    a grid made from the image itself (``grid.source_is_pixel``) needs no ``pixels``.
     """
     ws = fresh(workspace)
     n_all = len(merged)
@@ -74,7 +75,7 @@ def assemble_plane_set(
             grid.cellmap, grid.tkeys, grid.tvals, grid.counts, grid.sums, grid.scatters, merged.plane_of_voxel,
             planes, band, power, float(noise_coeff), ray, bool(refine_boundary), point_plane, False, False, z3,
             np.zeros(1), z3, np.zeros((1, 3, 3)), np.zeros(1, np.int64), z3, np.zeros(1, np.int64),
-            np.zeros((1, 10)), ws.get("rf_scratch", (3, max(int(grid.counts.max()), 1)), np.float64),
+            np.zeros((1, 10)), ws.get("rf_scratch", (kf.SCRATCH_ROWS, max(int(grid.counts.max()), 1)), np.float64),
         )
         kf.plane_stats(grid.points, point_plane, m, counts, sums, scatters)
     radii = np.zeros(n_all)
@@ -99,18 +100,19 @@ def assemble_plane_set(
     # Keep the planes that are large enough (the area comes from the pass below), the most supported first.
     h, w = image_shape if image_shape is not None else (1, 1)
     with_labels = labels is not None
-    if with_labels and pixels is None:
+    if with_labels and pixels is None and not grid.source_is_pixel:
         raise ValueError("pixels: needed with image_shape to make the label image")
     big = counts >= min_plane_points
     remap = np.full(n_all, -1, np.int32)
     order = np.flatnonzero(big)
     order = order[np.argsort(-counts[order], kind="stable")]
     remap[order] = np.arange(len(order), dtype=np.int32)
-    pix = np.ascontiguousarray(pixels, dtype=np.int32) if with_labels else np.zeros(1, np.int32)
+    src_is_pixel = grid.source_is_pixel and pixels is None
+    pix = np.ascontiguousarray(pixels, dtype=np.int32) if with_labels and not src_is_pixel else np.zeros(1, np.int32)
     lab = labels.reshape(-1) if with_labels else np.zeros(1, np.int32)
     kf.plane_extent(grid.points, point_plane, m, centroids, tb, float(area_patch_m), area_grid, area_off, occupied,
                     float(sample_spacing_m), sample_grid, sample_off, sample_acc, radii, areas, with_labels,
-                    grid.source, pix, remap, w, h, int(pixel_stride), lab)
+                    grid.source, src_is_pixel, pix, remap, w, h, int(pixel_stride), lab)
     keep = order[areas[order] >= min_plane_area_m2].astype(np.int64)
     if len(keep) < len(order):  # planes too small in area: renumber the labels
         final = np.full(len(order), -1, np.int32)

@@ -8,7 +8,7 @@ from reloc.camera import Intrinsics
 from reloc.extraction import _kernels_voxel as kv
 from reloc.extraction._workspace import Workspace, fresh
 
-__all__ = ["depth_to_points"]
+__all__ = ["depth_to_points", "depth_to_keyed_points", "depth_to_key_image"]
 
 
 def depth_to_points(
@@ -86,3 +86,40 @@ def depth_to_keyed_points(
                             float(intrinsics.cy), int(pixel_stride), float(min_depth_m), float(max_depth_m),
                             1.0 / float(voxel_size_m), box, pts, pix, key, cellcount)
     return pts[:m], pix[:m], key[:m], cellcount
+
+
+def depth_to_key_image(
+    depth_m: np.ndarray,
+    intrinsics: Intrinsics,
+    box: np.ndarray,
+    *,
+    voxel_size_m: float,
+    min_depth_m: float = 0.3,
+    max_depth_m: float = 8.0,
+    pixel_stride: int = 1,
+    workspace: Workspace | None = None,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
+    """The first half of image-order voxelization: the dense voxel key (in ``box``, from ``voxelize.frustum_box``)
+    of every ``pixel_stride``-th pixel, -1 where the depth is invalid (as :func:`depth_to_points`), and the points
+    per cell, without storing any point (``voxelize.voxelize_key_image`` makes them straight in voxel order).
+
+    Returns ``(depth (H, W) float32 contiguous, pixel_key (ceil(H/s) * ceil(W/s),) int32, cellcount (nx*ny*nz,)
+    int32, number of valid pixels)``.
+    """
+    depth = np.asarray(depth_m)
+    if depth.ndim != 2 or depth.shape != intrinsics.shape:
+        raise ValueError(f"depth_m: expected shape {intrinsics.shape} (from the intrinsics), got {depth.shape}")
+    depth = np.ascontiguousarray(depth, dtype=np.float32)
+    if not isinstance(pixel_stride, (int, np.integer)) or pixel_stride < 1:
+        raise ValueError(f"pixel_stride: expected an integer >= 1, got {pixel_stride!r}")
+    if not (0 <= min_depth_m < max_depth_m):
+        raise ValueError(f"min_depth_m, max_depth_m: expected 0 <= min < max, got {min_depth_m}, {max_depth_m}")
+    h, w = depth.shape
+    cap = ((h + pixel_stride - 1) // pixel_stride) * ((w + pixel_stride - 1) // pixel_stride)
+    ws = fresh(workspace)
+    pixel_key = ws.get("bp_pixel_key", cap, np.int32)
+    cellcount = ws.get("vx_cellmap", int(box[3] * box[4] * box[5]), np.int32)
+    m = kv.key_image(depth, float(intrinsics.fx), float(intrinsics.fy), float(intrinsics.cx), float(intrinsics.cy),
+                     int(pixel_stride), float(min_depth_m), float(max_depth_m), 1.0 / float(voxel_size_m), box,
+                     pixel_key, cellcount)
+    return depth, pixel_key, cellcount, int(m)

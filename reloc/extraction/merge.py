@@ -233,7 +233,7 @@ def refine_merged_planes(
         grid.dense, grid.cellmap, grid.tkeys, grid.tvals, grid.counts, grid.sums, grid.scatters,
         merged.plane_of_voxel, planes, band, noise_law_code(noise_model), float(noise_coeff), ray,
         bool(refine_boundary), point_plane, True, bool(noise_weights), refs, acc_w, acc_s, acc_S, acc_n, acc_sum,
-        acc_amb, sup, ws.get("rf_scratch", (3, max(int(grid.counts.max()), 1)), np.float64),
+        acc_amb, sup, ws.get("rf_scratch", (kfin.SCRATCH_ROWS, max(int(grid.counts.max()), 1)), np.float64),
     )
     wmom = merged.wmoments.copy()
     wscat = merged.wscatters.copy()

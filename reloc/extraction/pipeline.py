@@ -11,12 +11,12 @@ import numpy as np
 from reloc.camera import DepthFrame, gravity_from_camera_y
 from reloc.extraction._workspace import Workspace
 from reloc.extraction.assemble import assemble_plane_set
-from reloc.extraction.backproject import depth_to_keyed_points, depth_to_points
+from reloc.extraction.backproject import depth_to_key_image, depth_to_points
 from reloc.extraction.fit import check_points
 from reloc.extraction.merge import MergedPlanes, merge_voxel_planes, refine_merged_planes
 from reloc.extraction.params import ExtractionParams
 from reloc.extraction.voxel_planes import VoxelPlanes, fit_voxel_planes, refine_voxel_planes
-from reloc.extraction.voxelize import VoxelGrid, frustum_box, voxelize, voxelize_keyed
+from reloc.extraction.voxelize import VoxelGrid, frustum_box, voxelize, voxelize_key_image
 from reloc.planeset import PlaneSet
 
 __all__ = ["ExtractionResult", "PlaneExtractor", "extract_planes", "extract_planes_from_points", "STAGES"]
@@ -72,14 +72,18 @@ class PlaneExtractor:
             t = time.perf_counter()
             grid = voxelize(pts, voxel_size_m=p.voxel_size_m, workspace=self.workspace)
         else:
-            pts, pix, point_key, cellcount = depth_to_keyed_points(
+            # Image-order voxelization: a pass that keys every pixel to its cell of the frustum, then one that
+            # writes each point straight to its voxel's place (no point list in pixel order, no gather).
+            depth, pixel_key, cellcount, m = depth_to_key_image(
                 frame.depth_m, frame.intrinsics, self._box, voxel_size_m=p.voxel_size_m, min_depth_m=p.min_depth_m,
                 max_depth_m=p.max_depth_m, pixel_stride=p.pixel_stride, workspace=self.workspace,
             )
             timings = {"backproject": (time.perf_counter() - t0) * 1e3}
             t = time.perf_counter()
-            grid = voxelize_keyed(pts, point_key, cellcount, self._box, voxel_size_m=p.voxel_size_m,
-                                  workspace=self.workspace)
+            grid = voxelize_key_image(depth, frame.intrinsics, pixel_key, cellcount, m, self._box,
+                                      voxel_size_m=p.voxel_size_m, pixel_stride=p.pixel_stride,
+                                      workspace=self.workspace)
+            pts, pix = grid.points, None
         timings["voxelize"] = (time.perf_counter() - t) * 1e3
         return self._from_grid(grid, pts, pix, frame.intrinsics.shape, self.gravity_of(frame), timings, t0,
                                ordered=True)

@@ -9,7 +9,7 @@ import numpy as np
 from reloc.extraction import _kernels_voxel as kv
 from reloc.extraction._workspace import Workspace, fresh
 
-__all__ = ["VoxelGrid", "voxelize"]
+__all__ = ["VoxelGrid", "voxelize", "voxelize_keyed", "voxelize_key_image", "frustum_box"]
 
 # Largest dense key box, in cells, relative to the number of points (beyond it the hash table is used).
 DENSE_CELLS_PER_POINT = 4
@@ -25,7 +25,8 @@ class VoxelGrid:
       voxel ``(ix, iy, iz)`` of the grid anchored at the origin has key ``((ix-x0) ny + iy-y0) nz + iz-z0``.
     - ``dense`` and the lookup table (``cellmap`` or the hash ``tkeys``/``tvals``) mapping keys to voxel ids.
     - ``keys`` (V,) increasing; ``start`` (V + 1,) offsets into ``points`` (M, 3) float32 / ``source`` (M,) int32
-      (index of each point in the input), voxel by voxel.
+      (index of each point in the input, or its flat pixel index ``v * W + u`` when ``source_is_pixel``: a grid
+      made from a depth image by :func:`voxelize_key_image`), voxel by voxel.
     - ``counts`` (V,) int64, ``sums`` (V, 3), ``scatters`` (V, 3, 3): point count, sum and sum of ``p p^T`` about the
       origin (float64).
     """
@@ -43,6 +44,7 @@ class VoxelGrid:
     counts: np.ndarray
     sums: np.ndarray
     scatters: np.ndarray
+    source_is_pixel: bool = False
 
     def __len__(self) -> int:
         return int(self.keys.shape[0])
@@ -82,13 +84,13 @@ def frustum_box(intrinsics, *, min_depth_m: float, max_depth_m: float, voxel_siz
     return np.concatenate([lo, hi - lo + 1]).astype(np.int64)
 
 
-def _grid(ws, m, nv, box, dense, cellmap, tkeys, tvals, voxel_size_m) -> VoxelGrid:
+def _grid(ws, m, nv, box, dense, cellmap, tkeys, tvals, voxel_size_m, source_is_pixel=False) -> VoxelGrid:
     return VoxelGrid(
         voxel_size_m=float(voxel_size_m), box=box, dense=bool(dense), cellmap=cellmap, tkeys=tkeys, tvals=tvals,
         keys=ws.get("vx_keys", max(m, 1), np.int64)[:nv], start=ws.get("vx_start", m + 1, np.int64)[: nv + 1],
         points=ws.get("vx_points", (m, 3), np.float32), source=ws.get("vx_source", m, np.int32),
         counts=ws.get("vx_counts", max(m, 1), np.int64)[:nv], sums=ws.get("vx_sums", (max(m, 1), 3), np.float64)[:nv],
-        scatters=ws.get("vx_scatters", (max(m, 1), 3, 3), np.float64)[:nv],
+        scatters=ws.get("vx_scatters", (max(m, 1), 3, 3), np.float64)[:nv], source_is_pixel=source_is_pixel,
     )
 
 
@@ -107,6 +109,26 @@ def voxelize_keyed(points: np.ndarray, point_key: np.ndarray, cellcount: np.ndar
         kv.voxel_moments(args[2], args[1], nv, *args[4:])
     return _grid(ws, m, nv, box, True, cellcount, ws.get("vx_tkeys", 1, np.int64), ws.get("vx_tvals", 1, np.int32),
                  voxel_size_m)
+
+
+def voxelize_key_image(depth: np.ndarray, intrinsics, pixel_key: np.ndarray, cellcount: np.ndarray, m: int,
+                       box: np.ndarray, *, voxel_size_m: float, pixel_stride: int = 1,
+                       workspace: Workspace | None = None) -> VoxelGrid:
+    """The second half of image-order voxelization (after ``backproject.depth_to_key_image``): the ``m`` valid
+    pixels' points computed again and written straight to their voxel's place, then each voxel's moments. The
+    points are those of ``depth_to_points`` (same values, and in raster order inside a voxel, as
+    :func:`voxelize_keyed` leaves them); ``source`` holds their flat pixel indices. ``cellcount`` becomes the cell
+    map."""
+    ws = fresh(workspace)
+    g = _grid(ws, m, m, box, True, cellcount, ws.get("vx_tkeys", 1, np.int64), ws.get("vx_tvals", 1, np.int32),
+              voxel_size_m, source_is_pixel=True)
+    K = intrinsics
+    nv = kv.scatter_image(depth, float(K.fx), float(K.fy), float(K.cx), float(K.cy), int(pixel_stride), pixel_key,
+                          cellcount, box, g.keys, g.start, g.points, g.source)
+    g = _grid(ws, m, nv, box, True, cellcount, g.tkeys, g.tvals, voxel_size_m, source_is_pixel=True)
+    if nv:
+        kv.voxel_moments(g.points, g.start, nv, g.counts, g.sums, g.scatters)
+    return g
 
 
 def voxelize(
