@@ -229,8 +229,10 @@ def test_fragment_merge_kernel_on_two_coplanar_regions():
     assert np.allclose(rplane[root, :3], n_ref, atol=1e-9)
 
 
-def test_assemble_statistics_match_numpy():
-    """Supporting points, statistics, radius, area and samples of a merged plane, against NumPy."""
+@pytest.mark.parametrize("sample_m", [0.2, 0.1])
+def test_assemble_statistics_match_numpy(sample_m):
+    """Supporting points, statistics, radius, area and samples of a merged plane, against NumPy (sample cells
+    other than the area cells, and the same: then the area comes from the sample cells)."""
     rng = np.random.default_rng(21)
     n_true = np.array([0.0, 0.0, -1.0])
     pts = _plane_points(rng, 4000, n_true, 2.0, 0.001, extent=0.5).astype(np.float32)
@@ -239,7 +241,7 @@ def test_assemble_statistics_match_numpy():
     refine_voxel_planes(g, vp)
     mp = merge_voxel_planes(g, vp)
     ps = assemble_plane_set(g, mp, min_plane_points=10, min_plane_area_m2=0.0, area_patch_m=0.1,
-                            sample_spacing_m=0.2)
+                            sample_spacing_m=sample_m)
     assert len(ps) == 1
     p = pts.astype(np.float64)
     assert ps.counts[0] == len(p)  # all points are within 4 sigma of the plane
@@ -253,7 +255,7 @@ def test_assemble_statistics_match_numpy():
     t = np.array(tangent_basis(*ps.normals[0])).reshape(2, 3)
     cells = np.unique(np.floor(p @ t.T / 0.1).astype(np.int64), axis=0)
     assert ps.areas[0] == pytest.approx(len(cells) * 0.01, rel=1e-9)
-    scells, inv = np.unique(np.floor(p @ t.T / 0.2).astype(np.int64), axis=0, return_inverse=True)
+    scells, inv = np.unique(np.floor(p @ t.T / sample_m).astype(np.int64), axis=0, return_inverse=True)
     means = np.stack([np.bincount(inv.reshape(-1), weights=p[:, k]) for k in range(3)], 1)
     means /= np.bincount(inv.reshape(-1))[:, None]
     got = ps.samples_of(0).astype(np.float64)

@@ -700,6 +700,11 @@ def plane_extent(sorted_pts, point_plane, m, centroids, tb, area_cell, area_grid
     sample_acc[: sample_off[n_planes], :] = 0.0
     if with_labels:
         labels[:] = -1
+    # With the same cells for the area and the samples (the defaults), a cell is occupied when it has a sample.
+    same = area_cell == sample_cell
+    for p in range(n_planes):
+        for k in range(4):
+            same = same and area_grid[p, k] == sample_grid[p, k]
     inv_a = 1.0 / area_cell
     inv_s = 1.0 / sample_cell
     # The points come voxel by voxel, so a plane's points come in runs: its constants are loaded once per run and
@@ -737,9 +742,10 @@ def plane_extent(sorted_pts, point_plane, m, centroids, tb, area_cell, area_grid
         u = t0 * x + t1 * y + t2 * z
         v = t3 * x + t4 * y + t5 * z
         # Offsets from the grid corner are >= 0 inside the grid, where int() is floor().
-        iu = min(max(int(u * inv_a - a0), 0), an - 1)
-        iv = min(max(int(v * inv_a - a1), 0), av - 1)
-        occupied[ao + iu * av + iv] = 1
+        if not same:
+            iu = min(max(int(u * inv_a - a0), 0), an - 1)
+            iv = min(max(int(v * inv_a - a1), 0), av - 1)
+            occupied[ao + iu * av + iv] = 1
         iu = min(max(int(u * inv_s - s0), 0), sn - 1)
         iv = min(max(int(v * inv_s - s1), 0), sv - 1)
         c = so + iu * sv + iv
@@ -765,8 +771,12 @@ def plane_extent(sorted_pts, point_plane, m, centroids, tb, area_cell, area_grid
     for p in range(n_planes):
         radii[p] = math.sqrt(radii[p])
         cnt = 0
-        for c in range(area_off[p], area_off[p + 1]):
-            cnt += occupied[c]
+        if same:
+            for c in range(sample_off[p], sample_off[p + 1]):
+                cnt += 1 if sample_acc[c, 0] > 0.0 else 0
+        else:
+            for c in range(area_off[p], area_off[p + 1]):
+                cnt += occupied[c]
         areas[p] = cnt * area_cell * area_cell
 
 

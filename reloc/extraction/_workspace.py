@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 
@@ -12,12 +14,16 @@ class Workspace:
         self._bufs: dict[str, np.ndarray] = {}
 
     def get(self, name: str, shape, dtype) -> np.ndarray:
-        shape = (shape,) if np.isscalar(shape) else tuple(int(s) for s in shape)
-        size = int(np.prod(shape)) if shape else 1
-        dtype = np.dtype(dtype)
+        # Called a few dozen times per frame: plain Python arithmetic, not NumPy's, on the shape.
+        if isinstance(shape, (int, np.integer)):
+            shape = (int(shape),)
+            size = shape[0]
+        else:
+            shape = tuple(int(s) for s in shape)
+            size = math.prod(shape)
         buf = self._bufs.get(name)
         if buf is None or buf.dtype != dtype or buf.size < size:
-            buf = np.empty(max(size + size // 4, 16), dtype)
+            buf = np.empty(max(size + size // 4, 16), np.dtype(dtype))
             self._bufs[name] = buf
         return buf[:size].reshape(shape)
 

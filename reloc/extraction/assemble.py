@@ -53,8 +53,10 @@ def assemble_plane_set(
     m = int(grid.start[-1]) if len(grid.start) else 0
     labels = None
     if image_shape is not None:
-        labels = np.full(image_shape, -1, np.int32)
+        labels = np.empty(image_shape, np.int32)  # filled by plane_extent
     if n_all == 0 or m == 0:
+        if labels is not None:
+            labels.fill(-1)
         return PlaneSet.empty(frame=frame, gravity=gravity, labels=labels)
     planes = np.ascontiguousarray(merged.planes)
     band = float(inlier_sigmas) * np.sqrt(np.maximum(merged.variance_factors, 1.0))
@@ -118,7 +120,7 @@ def assemble_plane_set(
         final = np.full(len(order), -1, np.int32)
         final[remap[keep]] = np.arange(len(keep), dtype=np.int32)
         if with_labels:
-            lab[:] = np.where(lab >= 0, final[np.maximum(lab, 0)], -1)
+            kf.remap_points(lab, lab.shape[0], final)
     sample_points = np.empty((max(n_sample, 1), 3), np.float32)
     sample_ptr = np.zeros(len(keep) + 1, np.int64)
     n_samples = kf.collect_samples(sample_acc, sample_off, keep, sample_points, sample_ptr)
