@@ -170,6 +170,7 @@ def voxel_weighted_refit(sorted_pts, point_bits, voxel_start, nv, counts, sums, 
     qz = np.empty(cap)
     base = np.empty(cap)
     gz = np.empty(cap)
+    pick = np.empty(cap + 1, np.int64)
     use_robust = irls_iterations > 0
     n_pass = max(irls_iterations, 1)
     for v in range(nv):
@@ -194,11 +195,21 @@ def voxel_weighted_refit(sorted_pts, point_bits, voxel_start, nv, counts, sums, 
         # Local copies of the (sub)sampled points about the centroid, and their plane-independent weights.
         mloc = 0
         r2max = 0.0
-        for j in range(a, b):
-            if step > 1 and not _keep(point_bits, j, step):
-                continue
-            if mloc == cap:
-                break
+        if step > 1:
+            # The subsample's indices without a branch (one on the hash mispredicts about once in k points), then
+            # only its points are read.
+            n_keep = 0
+            for j in range(a, b):
+                pick[n_keep] = j
+                n_keep += 1 if _keep(point_bits, j, step) else 0
+                if n_keep == cap:
+                    break
+        else:
+            n_keep = min(b - a, cap)
+            for i in range(n_keep):
+                pick[i] = a + i
+        for i in range(n_keep):
+            j = pick[i]
             x = sorted_pts[j, 0] - cx
             y = sorted_pts[j, 1] - cy
             z = sorted_pts[j, 2] - cz
