@@ -135,6 +135,24 @@ def test_voxel_planes_match_numpy_weighted_fit():
     assert np.allclose(vp.wmoments[0, 1:], (w[:, None] * p).sum(0), rtol=1e-9)
     assert np.allclose(vp.wscatters[0], (w[:, None] * p).T @ p, rtol=1e-9)
     assert vp.radius[0] == pytest.approx(np.linalg.norm(p - c, axis=1).max(), rel=1e-6)
+    # A voxel of more than voxel_fit_max_points points is refit from the points whose coordinate bits hash into
+    # 1 in k (k = 4 for 400 points and at most 100), its moments scaled from them to all points.
+    vp = fit_voxel_planes(g, min_points_per_voxel=12, noise_model="kinect", noise_coeff=1.425e-3)
+    refine_voxel_planes(g, vp, noise_direction="ray", noise_weights=True, adaptive_weights=False,
+                        irls_iterations=0, voxel_fit_max_points=100)
+    bits = g.points.view(np.int32)
+    picked = ((bits[:, 0] ^ bits[:, 1] ^ bits[:, 2]) >> 1) & 3 == 0
+    assert 60 < picked.sum() < 140
+    ps = g.points[picked].astype(np.float64)
+    ws = ps[:, 2] ** 2 / (1.425e-3 * ps[:, 2] ** 2) ** 2
+    f = len(p) / len(ps)
+    mu = (ws[:, None] * ps).sum(0) / ws.sum()
+    n_ref = np.linalg.eigh((ws[:, None] * (ps - mu)).T @ (ps - mu))[1][:, 0]
+    n_ref *= np.sign(-(n_ref @ mu))
+    assert np.allclose(vp.planes[0, :3], n_ref, atol=1e-9)
+    assert vp.wmoments[0, 0] == pytest.approx(f * ws.sum(), rel=1e-9)
+    assert np.allclose(vp.wscatters[0], f * (ws[:, None] * ps).T @ ps, rtol=1e-9)
+    assert vp.radius[0] == pytest.approx(np.linalg.norm(ps - c, axis=1).max(), rel=1e-6)
 
 
 def test_voxel_refit_rejects_outliers_and_a_blob_is_not_planar():
