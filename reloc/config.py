@@ -322,15 +322,38 @@ class EvaluationConfig(_Section):
         description="Before accepting, search the winner's triplets again with only angle, handedness and ground "
         "tests, so that twins the map covers less completely still compete (and make the query ambiguous).",
     )
+    probe_planes: int = Field(
+        5, ge=0,
+        description="The twin probe also tries the triplets among this many of the winner's largest matched planes "
+        "(0: only the winner's own triplet), so a twin whose map lacks one plane of that triplet is still found.",
+    )
+    tight_decision: bool = Field(
+        True,
+        description="Decide between poses after refining every mode over its matched planes and verifying it at "
+        "the final tolerances: a look-alike that matches only within the loose search tolerances loses those "
+        "planes, the true pose keeps them.",
+    )
+    decision_max_offset_m: float = Field(
+        0.03, gt=0,
+        description="With tight_decision, a plane counts as evidence for a refined pose when it lies within this "
+        "offset of its map plane (acceptance itself uses final_max_offset_m).",
+    )
+    decision_conflict_m: float = Field(
+        0.05, ge=0,
+        description="With tight_decision, an unmatched plane conflicts with a map surface facing the same way when "
+        "it lies farther than this from it (between decision_max_offset_m and this it is neither matched nor in "
+        "conflict).",
+    )
     optimistic_rivals: bool = Field(
         True,
         description="In the ambiguity test a rival pose's planes that land where the map knows nothing count as if "
         "they matched: an incomplete map must not make a twin look worse than the pose it covers well.",
     )
     rival_unknown_weight: float = Field(
-        0.5, ge=0, le=1,
+        0.75, ge=0, le=1,
         description="With optimistic_rivals, how much of a match an unknown plane of a rival counts for (needs a "
-        "map with free space; 1 = as a match, 0 = not at all).",
+        "map with free space; 1 = as a match, 0 = not at all), scaled down linearly with the fraction of the "
+        "plane's place the map saw empty (none left at max_free_fraction).",
     )
     evidence_area_m2: float = Field(
         1.0, gt=0, description="A matched plane's weight (Eq. 12-13) grows with its area up to this (small facets are "

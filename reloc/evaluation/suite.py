@@ -23,7 +23,7 @@ import numpy as np
 from reloc.evaluation.ambiguity import is_ambiguous
 from reloc.evaluation.metrics import Outcome, Summary, classify, summarize
 from reloc.mapping import MappingParams, PlaneMap, build_map, build_submap
-from reloc.matching import MatchingParams, Relocalizer, ablation_params
+from reloc.matching import MatchingParams, Relocalizer, ablation_params, scaled_to_sensor
 from reloc.planeset import PlaneSet
 from reloc.transforms import pose_error
 
@@ -227,8 +227,11 @@ class Prepared:
 
     def evaluate(self, matching: MatchingParams | None = None, progress: Callable | None = None,
                  label: str = "") -> list[SceneResult]:
-        """Relocalize every scene's positives and negatives with ``matching``."""
+        """Relocalize every scene's positives and negatives with ``matching`` (its decision offsets scaled to the
+        spec's sensor, as :meth:`MatchingParams.from_config` does for a live camera)."""
         matching = matching or MatchingParams()
+        sensor = extraction_for_sensor(self.spec)
+        matching = scaled_to_sensor(matching, sensor.noise_model, sensor.noise_coeff)
         results = []
         for name in self.spec.scenes:
             reloc = Relocalizer(self.maps[name], matching)

@@ -6,7 +6,7 @@ candidates), :mod:`~reloc.matching.transform` (pose from plane pairs), :mod:`~re
 density, decision) and :mod:`~reloc.matching.index` (the map index).
 """
 
-from reloc.matching.params import ABLATIONS, MatchingParams, ablation_params
+from reloc.matching.params import ABLATIONS, MatchingParams, ablation_params, scaled_to_sensor
 from reloc.matching.relocalizer import STAGES, Relocalizer, RelocResult, locate
 from reloc.matching.transform import PlanePairTransform, transform_from_plane_pairs
 
@@ -14,6 +14,7 @@ __all__ = [
     "ABLATIONS",
     "MatchingParams",
     "ablation_params",
+    "scaled_to_sensor",
     "Relocalizer",
     "RelocResult",
     "STAGES",

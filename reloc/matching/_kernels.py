@@ -594,8 +594,9 @@ def verify_transforms(R, t, cand, plane_order, sub_normals, sub_offsets, sub_cen
                       map_normals, map_offsets, map_areas, min_area_ratio, hash_keys, hash_ptr, hash_ids, cell,
                       cos_match, max_offset, inlier_m,
                       use_projection, min_projection, use_overlap, min_overlap, min_matched, min_competitor,
-                      min_counted_area, free_keys, free_voxel, max_free_fraction, require_triplet, out_match, out_proj,
-                      out_over, out_state, out_nmatched, out_explained, out_unknown, out_free, out_pass):
+                      min_counted_area, free_keys, free_voxel, max_free_fraction, require_triplet, conflict_offset,
+                      out_match, out_proj, out_over, out_state, out_nmatched, out_explained, out_unknown, out_free,
+                      out_pass, out_free_frac):
     """Check each transform ``T_map_sub = (R[h], t[h])`` against the map.
 
     For every submap plane j (the three planes of the candidate first, then ``plane_order``), its verification
@@ -618,9 +619,13 @@ def verify_transforms(R, t, cand, plane_order, sub_normals, sub_offsets, sub_cen
     map saw empty space where the pose puts a surface). ``out_free`` (H,) counts such planes. ``out_state`` (H, S)
     int8 says why each plane is unmatched: 0 matched (or not judged), 1 unknown (the map has nothing there: no
     surface facing the same way off its plane, no free space), 2 conflict (map surfaces facing the same way, but
-    off its plane, are there), 3 in known free space, 4 too small to count;
+    more than ``conflict_offset`` off its plane, are there), 3 in known free space, 4 too small to count; with a
+    ``conflict_offset`` above ``max_offset``, 5 near a surface facing the same way, between the two offsets
+    (neither matched nor in conflict, nor unknown to the map);
     ``out_unknown`` (H,) is the weight of the unknown planes as a fraction of the total (what the pose might still
-    explain with a more complete map).
+    explain with a more complete map); ``out_free_frac`` (H, S) float32 is the fraction of an unmatched counted
+    plane's samples in known free space (0 otherwise): a plane the map knows nothing about but whose place the map
+    saw partly empty is less likely to be there.
 
     Outputs per hypothesis h and submap plane j: ``out_match`` (H, S) int32 map plane or -1, ``out_proj`` and
     ``out_over`` (H, S) float32 ratios; per hypothesis ``out_nmatched`` int32, ``out_explained`` float64,
@@ -647,6 +652,7 @@ def verify_transforms(R, t, cand, plane_order, sub_normals, sub_offsets, sub_cen
             out_proj[h, j] = 0.0
             out_over[h, j] = 0.0
             out_state[h, j] = 0 if sub_areas[j] >= min_counted_area else 4
+            out_free_frac[h, j] = 0.0
         n_matched = 0
         explained = 0.0
         small_matched = 0.0
@@ -820,6 +826,7 @@ def verify_transforms(R, t, cand, plane_order, sub_normals, sub_offsets, sub_cen
                 # not know.
                 inside = 0
                 near = 0
+                close = 0
                 for s in range(s0, s1):
                     p = vs_points[s]
                     px = R[h, 0, 0] * p[0] + R[h, 0, 1] * p[1] + R[h, 0, 2] * p[2] + t[h, 0]
@@ -833,13 +840,29 @@ def verify_transforms(R, t, cand, plane_order, sub_normals, sub_offsets, sub_cen
                     key = _cell_of(px, py, pz, cell)
                     pos = _lower_bound(hash_keys, 0, n_keys, key)
                     if pos < n_keys and hash_keys[pos] == key:
+                        far_hit = False
+                        close_hit = False
+                        on_hit = False
                         for e in range(hash_ptr[pos], hash_ptr[pos + 1]):
                             i = hash_ids[e]
-                            if (nx * map_normals[i, 0] + ny * map_normals[i, 1] + nz * map_normals[i, 2] >= 0.866
-                                    and abs(map_normals[i, 0] * px + map_normals[i, 1] * py + map_normals[i, 2] * pz
-                                            + map_offsets[i]) > max_offset):
-                                near += 1
-                                break
+                            if nx * map_normals[i, 0] + ny * map_normals[i, 1] + nz * map_normals[i, 2] >= 0.866:
+                                off = abs(map_normals[i, 0] * px + map_normals[i, 1] * py + map_normals[i, 2] * pz
+                                          + map_offsets[i])
+                                if off > conflict_offset:
+                                    far_hit = True
+                                elif off > max_offset:
+                                    close_hit = True
+                                else:
+                                    on_hit = True
+                        # A sample on a map surface of its own plane (one too small or too sparse to match, e.g. a
+                        # door the map saw in part, in front of its wall) is not in conflict with the wall.
+                        if on_hit:
+                            continue
+                        if far_hit:
+                            near += 1
+                        elif close_hit:
+                            close += 1
+                out_free_frac[h, j] = inside / m_j
                 if inside > max_free_fraction * m_j:
                     n_free += 1
                     out_state[h, j] = 3
@@ -847,6 +870,8 @@ def verify_transforms(R, t, cand, plane_order, sub_normals, sub_offsets, sub_cen
                     break
                 if near >= 0.5 * m_j:
                     out_state[h, j] = 2
+                elif near + close >= 0.5 * m_j:
+                    out_state[h, j] = 5
                 else:
                     out_state[h, j] = 1
                     unknown += math.sqrt(sub_areas[j])
@@ -1066,11 +1091,12 @@ def _warmup() -> None:
     ost = np.empty((1, S), np.int8)
     of = np.empty(1, np.int32)
     ok = np.empty(1, np.bool_)
+    off = np.empty((1, S), np.float32)
     for use_overlap in (True, False):
         verify_transforms(Rs, ts, cand, np.arange(3, dtype=np.int32), normals, offsets, centroids, areas, vs_ptr, pts,
                           normals, offsets, areas, 0.5, uk, hptr, di, 0.25, 0.99, 0.1, 0.05, True, 0.5, use_overlap,
                           0.3, 3, 0.5,
-                          0.3, uk, 0.25, 0.5, True, om, op, oo, ost, on, oe, ou, of, ok)
+                          0.3, uk, 0.25, 0.5, True, 0.1, om, op, oo, ost, on, oe, ou, of, ok, off)
     dens = np.empty(1)
     kde_density(Rs, ts, np.ones(1), np.ones(6), dens)
     grp = np.empty(1, np.int32)

@@ -9,7 +9,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, fields, replace
 
-__all__ = ["MatchingParams", "ABLATIONS", "ablation_params"]
+__all__ = ["MatchingParams", "ABLATIONS", "ablation_params", "scaled_to_sensor", "sensor_sigma_m"]
 
 
 @dataclass(frozen=True)
@@ -56,8 +56,12 @@ class MatchingParams:
     min_score: float = 0.0
     min_ambiguity_ratio: float = 1.5
     probe_twins: bool = True
+    probe_planes: int = 5
+    tight_decision: bool = True
+    decision_max_offset_m: float = 0.03
+    decision_conflict_m: float = 0.05
     optimistic_rivals: bool = True
-    rival_unknown_weight: float = 0.5
+    rival_unknown_weight: float = 0.75
     evidence_area_m2: float = 1.0
     distinct_translation_m: float = 0.25
     distinct_rotation_rad: float = math.radians(5.0)
@@ -104,10 +108,11 @@ class MatchingParams:
 
     @classmethod
     def from_config(cls, cfg) -> "MatchingParams":
-        """Read the ``matching`` and ``evaluation`` sections of a :class:`reloc.config.Config`."""
+        """Read the ``matching`` and ``evaluation`` sections of a :class:`reloc.config.Config`; the decision offsets
+        are scaled to the sensor of its ``extraction`` section (:func:`scaled_to_sensor`)."""
         m, e = cfg.matching, cfg.evaluation
         r = math.radians
-        return cls(
+        params = cls(
             incremental=m.incremental,
             initial_planes=m.initial_planes,
             max_submap_planes=m.max_submap_planes,
@@ -146,6 +151,10 @@ class MatchingParams:
             min_score=e.min_score,
             min_ambiguity_ratio=e.min_ambiguity_ratio,
             probe_twins=e.probe_twins,
+            probe_planes=e.probe_planes,
+            tight_decision=e.tight_decision,
+            decision_max_offset_m=e.decision_max_offset_m,
+            decision_conflict_m=e.decision_conflict_m,
             optimistic_rivals=e.optimistic_rivals,
             rival_unknown_weight=e.rival_unknown_weight,
             evidence_area_m2=e.evidence_area_m2,
@@ -157,6 +166,38 @@ class MatchingParams:
             final_max_angle_rad=r(e.final_max_angle_deg),
             final_max_offset_m=e.final_max_offset_m,
         )
+        return scaled_to_sensor(params, cfg.extraction.noise_model, cfg.extraction.noise_coeff)
+
+
+def sensor_sigma_m(noise_model: str, noise_coeff: float, depth_m: float = 3.0) -> float:
+    """Depth noise (m, one sigma) of the extraction's sensor law at ``depth_m``: kinect and stereo ``c z^2``, tof
+    ``c z``, constant ``c``."""
+    if noise_model in ("kinect", "stereo"):
+        return noise_coeff * depth_m**2
+    if noise_model == "tof":
+        return noise_coeff * depth_m
+    if noise_model == "constant":
+        return noise_coeff
+    raise ValueError(f"noise_model: expected 'kinect', 'tof', 'stereo' or 'constant', got {noise_model!r}")
+
+
+# The decision over refined poses tells a look-alike apart by planes a few centimetres off (a door in its niche).
+# Its offsets must stay a few noise sigmas wide: at 3 m a Kinect-class sensor (1.3 cm) keeps the defaults (3 and
+# 5 cm), a stereo camera of 2.2 cm gets 5 and 8.4 cm (at 3 and 5 cm its maps' biased wall fragments decided between
+# the four identical quarters of the symmetric room).
+DECISION_SIGMAS = 2.3
+CONFLICT_SIGMAS = 3.85
+
+
+def scaled_to_sensor(params: MatchingParams, noise_model: str, noise_coeff: float) -> MatchingParams:
+    """``params`` with ``decision_max_offset_m`` and ``decision_conflict_m`` raised to ``DECISION_SIGMAS`` and
+    ``CONFLICT_SIGMAS`` times the sensor's noise at 3 m (never lowered)."""
+    sigma = sensor_sigma_m(noise_model, noise_coeff)
+    return replace(
+        params,
+        decision_max_offset_m=max(params.decision_max_offset_m, DECISION_SIGMAS * sigma),
+        decision_conflict_m=max(params.decision_conflict_m, CONFLICT_SIGMAS * sigma),
+    )
 
 
 # The paper's ablations that concern matching (Table 3). VR-NE and VR-NM switch off extraction features

@@ -7,7 +7,8 @@
 2. their map candidates through the index (:mod:`reloc.matching.selection`);
 3. the transform of each candidate (:func:`reloc.matching._kernels.triplet_transforms`), degenerate ones dropped;
 4. verification of each transform against the map with *all* submap planes (Eq. 10-11, scene uniqueness);
-5. the decision over every verified hypothesis so far (Eq. 12-14, :mod:`reloc.matching.scoring`).
+5. the decision over every verified hypothesis so far (Eq. 12-14, :mod:`reloc.matching.scoring`); with
+   ``tight_decision`` it is taken again over the modes' refined poses, verified at sharper tolerances.
 
 It stops at the first accepted decision; when the planes run out the query is rejected with the last reason.
 The winner is refined by least squares over all its matched planes and verified again.
@@ -41,9 +42,10 @@ __all__ = ["RelocResult", "Relocalizer", "Verification", "locate", "support_per_
 RELOCALIZED = "relocalized"
 REJECTED = "rejected"
 STAGES = ("prepare", "select", "transform", "verify", "decide", "refine")
-# Parts of "decide" (their time is included in it): frequency weights (Eq. 12-13), kernel density (Eq. 14), and the
-# twin probe before accepting (relaxed selection, transforms and verification).
-SUBSTAGES = ("decide.weights", "decide.density", "decide.probe")
+# Parts of "decide" (their time is included in it): frequency weights (Eq. 12-13), kernel density (Eq. 14), the
+# refinement of every mode for the decision over refined poses, and the twin probe before accepting (relaxed
+# selection, transforms and verification).
+SUBSTAGES = ("decide.weights", "decide.density", "decide.tighten", "decide.probe")
 
 
 @dataclass(frozen=True)
@@ -105,8 +107,10 @@ class Verification:
 
     Per (hypothesis, submap plane): ``match`` map plane or -1, ``proj`` and ``over`` (Eq. 10-11 ratios), ``state``
     (0 matched, 1 unknown to the map, 2 conflicting with other map surfaces, 3 in known free space, 4 too small to
-    count). Per hypothesis: ``n_matched`` distinct map planes, ``explained`` and ``unknown`` fractions, ``free``
-    planes in free space, ``passed``. ``evaluated``: (hypothesis, plane) pairs looked at.
+    count, 5 near a map surface but neither matched nor in conflict: only with a conflict offset above the match
+    offset, as in the decision over refined poses), ``free_frac`` (the fraction of an unmatched plane's samples in
+    the map's known free space). Per hypothesis: ``n_matched`` distinct map planes, ``explained`` and ``unknown``
+    fractions, ``free`` planes in free space, ``passed``. ``evaluated``: (hypothesis, plane) pairs looked at.
     """
 
     match: np.ndarray
@@ -119,6 +123,7 @@ class Verification:
     free: np.ndarray
     passed: np.ndarray
     evaluated: int
+    free_frac: np.ndarray
 
 
 def replace_passed(v: Verification, passed: np.ndarray) -> Verification:
@@ -129,7 +134,7 @@ def replace_passed(v: Verification, passed: np.ndarray) -> Verification:
 class _Hypotheses:
     """Verified hypotheses that passed, accumulated over the rounds (arrays appended per round)."""
 
-    _FIELDS = ("match", "proj", "over", "state", "n_matched", "explained", "unknown")
+    _FIELDS = ("match", "proj", "over", "state", "free_frac", "n_matched", "explained", "unknown")
 
     def __init__(self, S: int):
         self.R = np.zeros((0, 3, 3))
@@ -139,6 +144,7 @@ class _Hypotheses:
         self.proj = np.zeros((0, S), np.float32)
         self.over = np.zeros((0, S), np.float32)
         self.state = np.zeros((0, S), np.int8)
+        self.free_frac = np.zeros((0, S), np.float32)
         self.n_matched = np.zeros(0, np.int32)
         self.explained = np.zeros(0)
         self.unknown = np.zeros(0)
@@ -219,7 +225,7 @@ class Relocalizer:
         return used, order, vs_ptr, np.ascontiguousarray(vs_pts[:n])
 
     def verify(self, used: PlaneSet, vs_ptr, vs_pts, R, t, cand, *, require_triplet: bool = True,
-               tight: bool = False) -> Verification:
+               tight: bool = False, max_offset_m: float | None = None) -> Verification:
         """Verify transforms ``(R, t)`` of candidates ``cand`` against the map; see ``verify_transforms``.
 
         A hypothesis passes (competes) when it could be the truth: its triplet matches, nothing it places lies in the
@@ -228,7 +234,8 @@ class Relocalizer:
         competitor that matches ``min_matched_planes`` and itself explains ``min_explained_fraction`` can win the
         decision. So a true pose that the map covers badly (it missed a plane there) still competes with a
         symmetric twin the map happens to cover, and the query is rejected as ambiguous instead of guessed.
-        ``tight`` uses the final tolerances (``final_max_angle_rad``, ``final_max_offset_m``) for the refined pose.
+        ``tight`` uses the final tolerances (``final_max_angle_rad``, ``final_max_offset_m``) for the refined pose;
+        ``max_offset_m`` then replaces the final offset (and caps the projection inlier distance).
         """
         p = self.params
         H, S = R.shape[0], len(used)
@@ -236,20 +243,23 @@ class Relocalizer:
             match=np.empty((H, S), np.int32), proj=np.empty((H, S), np.float32), over=np.empty((H, S), np.float32),
             state=np.empty((H, S), np.int8), n_matched=np.empty(H, np.int32), explained=np.empty(H),
             unknown=np.empty(H), free=np.empty(H, np.int32), passed=np.empty(H, np.bool_),
+            free_frac=np.empty((H, S), np.float32),
         )
         min_matched = max(3, (p.min_matched_planes if p.scene_uniqueness else 3) - 1)
         ix = self.index
+        final_offset = p.final_max_offset_m if max_offset_m is None else max_offset_m
         evaluated = K.verify_transforms(
             np.ascontiguousarray(R), np.ascontiguousarray(t), np.ascontiguousarray(cand), np.arange(S, dtype=np.int32),
             used.normals, used.offsets, used.centroids, used.areas, vs_ptr, vs_pts, ix.normals, ix.offsets, ix.areas,
             p.min_area_ratio if p.structural_constraints else 0.0, ix.hash_keys, ix.hash_ptr, ix.hash_ids, ix.cell_m,
             math.cos(p.final_max_angle_rad if tight else p.match_max_angle_rad),
-            p.final_max_offset_m if tight else p.match_max_offset_m,
-            min(p.projection_inlier_m, p.final_max_offset_m) if tight else p.projection_inlier_m, p.projection,
+            final_offset if tight else p.match_max_offset_m,
+            min(p.projection_inlier_m, final_offset) if tight else p.projection_inlier_m, p.projection,
             p.min_projection_ratio, p.overlap, p.min_overlap, min_matched, p.min_competitor_fraction,
             p.min_counted_area_m2, ix.free_keys, ix.free_voxel_m, p.max_free_fraction,
-            require_triplet, out["match"], out["proj"], out["over"], out["state"], out["n_matched"], out["explained"],
-            out["unknown"], out["free"], out["passed"],
+            require_triplet, max(final_offset, p.decision_conflict_m) if tight else p.match_max_offset_m,
+            out["match"], out["proj"], out["over"], out["state"], out["n_matched"], out["explained"], out["unknown"],
+            out["free"], out["passed"], out["free_frac"],
         )
         return Verification(**out, evaluated=int(evaluated))
 
@@ -283,14 +293,28 @@ class Relocalizer:
             js = js[keep]
         return T
 
-    def _probe_twins(self, used, vs_ptr, vs_pts, facing, distances, sub_ext, hyps, best, counts) -> None:
-        """Add to ``hyps`` the verified competitors found by the winner's submap triplets with relaxed filters."""
+    def _probe_twins(self, used, vs_ptr, vs_pts, facing, distances, sub_ext, hyps, winner_cand, winner_match,
+                     counts) -> None:
+        """Add to ``hyps`` the verified competitors found with relaxed filters by the winner's submap triplet (the
+        first three entries of its candidate row ``winner_cand``) and by the triplets among its ``probe_planes``
+        largest matched planes (``winner_match``: its map plane per submap plane, -1 unmatched).
+
+        One triplet is not enough: a twin room whose map lacks one plane of the winner's triplet (a table top the
+        mapping run saw only there) is found through the other planes both places share.
+        """
         p = self.params
         relaxed = replace(p, extent_tolerance_m=1e3, min_area_ratio=0.0, gap_tolerance_m=1e3)
-        j = hyps.cand[best, :3]
-        tri = np.ascontiguousarray(j[None, :], dtype=np.int32)
-        face0 = np.ascontiguousarray(facing[tri[:, 0]], dtype=np.int8)
-        use_ground = bool(p.structural_constraints and face0[0] != 0)
+        own = np.ascontiguousarray(np.asarray(winner_cand)[None, :3], dtype=np.int32)
+        matched = np.flatnonzero(np.asarray(winner_match) >= 0)
+        top = matched[np.argsort(-used.areas[matched], kind="stable")[: p.probe_planes]]
+        more, _, ground_more = submap_triplets(used.normals, facing, np.sort(top), 0, p)
+        use_ground = bool(p.structural_constraints and facing[own[0, 0]] != 0)
+        if len(more) and ground_more == use_ground:
+            tri = np.unique(np.concatenate([own, more]), axis=0)
+        else:
+            tri = own
+        face0 = np.ascontiguousarray(facing[tri[:, 0]] if use_ground else np.zeros(len(tri)), dtype=np.int8)
+        tri = np.ascontiguousarray(tri, dtype=np.int32)
         cand, generated, _ = candidate_triplets(
             self.index, used.normals, used.areas, tri, face0, gap_bounds(tri, distances, relaxed), sub_ext, use_ground,
             relaxed, brute_force=self.brute_force,
@@ -321,11 +345,56 @@ class Relocalizer:
 
     # -- one query -------------------------------------------------------------------------------------------------
 
+    def _tightened(self, hyps, used: PlaneSet, vs_ptr, vs_pts) -> "_Hypotheses":
+        """One hypothesis per mode of ``hyps``: its leader refined over its matched planes (least squares) and
+        verified again at the final tolerances, as the winner will be.
+
+        A look-alike pose matches some planes only within the loose search tolerances (a door 6 cm deep in its niche
+        taken for the wall beside it, in a corridor turned end for end); refined and held to
+        ``decision_max_offset_m``, it loses them, while the true pose keeps them. Decided on refined poses, the true
+        pose stands out where the raw triplet poses tie.
+        """
+        p = self.params
+        quality = hyps.n_matched.astype(np.float64) + hyps.explained
+        order = np.argsort(-quality, kind="stable").astype(np.int64)
+        group = np.empty(len(hyps), np.int32)
+        leaders = K.group_poses(np.ascontiguousarray(hyps.R), np.ascontiguousarray(hyps.t), order,
+                                p.distinct_translation_m, p.distinct_rotation_rad, group)
+        R = hyps.R[leaders].copy()
+        t = hyps.t[leaders].copy()
+        for k, a in enumerate(leaders):
+            T = self.refine(used, hyps.match[a], hyps.proj[a])
+            if T is not None:
+                R[k], t[k] = T[:3, :3], T[:3, 3]
+        cand = hyps.cand[leaders]
+        # Whether a mode competes and may win is judged at the final tolerances, as the winner will be; the
+        # evidence it carries (matches, overlaps, conflicts) at the sharper decision offset.
+        v = self.verify(used, vs_ptr, vs_pts, R, t, cand, require_triplet=False, tight=True)
+        sharp = self.verify(used, vs_ptr, vs_pts, R, t, cand, require_triplet=False, tight=True,
+                            max_offset_m=p.decision_max_offset_m)
+        v = replace(sharp, n_matched=v.n_matched, explained=v.explained, unknown=v.unknown, passed=v.passed)
+        out = _Hypotheses(len(used))
+        out.add(R, t, cand, v)
+        return out
+
+    def _judge(self, hyps, used: PlaneSet, vs_ptr, vs_pts, min_matched: int, timings: dict):
+        """The decision over ``hyps`` and the hypotheses it indexes: with ``tight_decision``, a pose the raw
+        hypotheses single out or find ambiguous is decided again over the refined modes (:meth:`_tightened`)."""
+        decision = self._decide(hyps, used, min_matched, timings)
+        if not self.params.tight_decision or decision.best < 0:
+            return decision, hyps
+        t0 = time.perf_counter()
+        tight = self._tightened(hyps, used, vs_ptr, vs_pts)
+        timings["decide.tighten"] += (time.perf_counter() - t0) * 1e3
+        if not len(tight):
+            return Decision(False, "no refined pose holds at the final tolerances", -1, 0.0, 0.0, 0), tight
+        return self._decide(tight, used, min_matched, timings), tight
+
     def _decide(self, hyps, used: PlaneSet, min_matched: int, timings: dict) -> Decision:
         """The decision over every hypothesis so far; its weights and density times go to ``timings``."""
         part: dict = {}
         decision = decide(hyps.R, hyps.t, hyps.match, hyps.over, hyps.n_matched, hyps.explained, self.params,
-                          min_matched=min_matched, state=hyps.state, areas=used.areas,
+                          min_matched=min_matched, state=hyps.state, areas=used.areas, free_frac=hyps.free_frac,
                           optimistic=len(self.index.free_keys) > 0, timings_ms=part)
         timings["decide.weights"] += part.get("weights", 0.0)
         timings["decide.density"] += part.get("density", 0.0)
@@ -363,6 +432,7 @@ class Relocalizer:
                 f"{S} submap planes and {len(self.index)} map planes; at least {min_matched} needed", counts, timings
             ))
         hyps = _Hypotheses(S)
+        judged = hyps
         decision = Decision(False, "no hypothesis passed verification", -1, 0.0, 0.0, 0)
         rounds = range(min(p.initial_planes, S), S + 1) if p.incremental else [S]
         prev = 0
@@ -404,7 +474,7 @@ class Relocalizer:
                 t3 = time.perf_counter()
                 timings["verify"] += (t3 - t2) * 1e3
                 if passed_any := (len(hyps) > 0):
-                    decision = self._decide(hyps, used, min_matched, timings)
+                    decision, judged = self._judge(hyps, used, vs_ptr, vs_pts, min_matched, timings)
                 timings["decide"] += (time.perf_counter() - t3) * 1e3
                 if passed_any and decision.accepted:
                     break
@@ -414,15 +484,17 @@ class Relocalizer:
             # fails the extent and area filters, but is still a pose that may be the truth).
             t0 = time.perf_counter()
             before = len(hyps)
-            self._probe_twins(used, vs_ptr, vs_pts, facing, distances, sub_ext, hyps, decision.best, counts)
+            self._probe_twins(used, vs_ptr, vs_pts, facing, distances, sub_ext, hyps, judged.cand[decision.best],
+                              judged.match[decision.best], counts)
             timings["decide.probe"] += (time.perf_counter() - t0) * 1e3
             if len(hyps) > before:
-                decision = self._decide(hyps, used, min_matched, timings)
+                decision, judged = self._judge(hyps, used, vs_ptr, vs_pts, min_matched, timings)
             timings["decide"] += (time.perf_counter() - t0) * 1e3
         if not decision.accepted:
             return finish(_rejected(decision.reason, counts, timings))
         # Refine the winner over all its matched planes, then verify and refine again.
         t0 = time.perf_counter()
+        hyps = judged
         b = decision.best
         match_row, proj_row = hyps.match[b], hyps.proj[b]
         explained = float(hyps.explained[b])

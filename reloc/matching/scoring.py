@@ -103,6 +103,7 @@ def decide(
     min_matched: int | None = None,
     state: np.ndarray | None = None,
     areas: np.ndarray | None = None,
+    free_frac: np.ndarray | None = None,
     optimistic: bool = True,
     timings_ms: dict | None = None,
 ) -> Decision:
@@ -136,8 +137,17 @@ def decide(
     rival = density
     if optimistic and params.optimistic_rivals and state is not None:
         # A rival is judged by what it might explain with a complete map: its planes that land where the map knows
-        # nothing count as if matched (with the frequency weight such a match would carry).
-        w_opt = w + params.rival_unknown_weight * np.sum(np.where(state == 1, plane_w[None, :], 0.0), axis=1)
+        # nothing count as if matched (with the frequency weight such a match would carry), less so the more of
+        # the plane's place the map saw empty (``free_frac``; at ``max_free_fraction`` it would contradict the map).
+        credit = np.where(state == 1, plane_w[None, :], 0.0)
+        if free_frac is not None and params.max_free_fraction > 0:
+            credit = credit * np.clip(1.0 - free_frac / params.max_free_fraction, 0.0, 1.0)
+        # The credit adds to the rival's evidence before it is clipped at zero: planes in conflict with the map
+        # still count against it (a pose that contradicts the map more than it matches gains nothing from
+        # planes the map does not know).
+        gain = np.sum(np.where(match >= 0, overlap, 0.0) * plane_w[None, :], axis=1)
+        against = np.sum(np.where(state == 2, plane_w[None, :], 0.0), axis=1)
+        w_opt = np.maximum(gain - against + params.rival_unknown_weight * np.sum(credit, axis=1), 0.0)
         mode_opt = np.bincount(group, weights=w_opt, minlength=n_modes) / np.maximum(size, 1)
         z = float(mode_w.sum())
         rival = pose_density(R[leaders], t[leaders], mode_opt, params) * (float(mode_opt.sum()) / max(z, 1e-300))
