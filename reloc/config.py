@@ -338,6 +338,12 @@ class EvaluationConfig(_Section):
         description="With tight_decision, a plane counts as evidence for a refined pose when it lies within this "
         "offset of its map plane (acceptance itself uses final_max_offset_m).",
     )
+    decision_modes: int = Field(
+        6, ge=1,
+        description="With tight_decision, how many modes (the best by matched planes and explained fraction) are "
+        "refined and decided over: poses beyond them match few planes, only dilute the frequency weights (Eq. "
+        "12-13) and cost time (an apartment query can have 47).",
+    )
     decision_conflict_m: float = Field(
         0.05, ge=0,
         description="With tight_decision, an unmatched plane conflicts with a map surface facing the same way when "

@@ -59,6 +59,7 @@ class MatchingParams:
     probe_planes: int = 5
     tight_decision: bool = True
     decision_max_offset_m: float = 0.03
+    decision_modes: int = 6
     decision_conflict_m: float = 0.05
     optimistic_rivals: bool = True
     rival_unknown_weight: float = 0.75
@@ -154,6 +155,7 @@ class MatchingParams:
             probe_planes=e.probe_planes,
             tight_decision=e.tight_decision,
             decision_max_offset_m=e.decision_max_offset_m,
+            decision_modes=e.decision_modes,
             decision_conflict_m=e.decision_conflict_m,
             optimistic_rivals=e.optimistic_rivals,
             rival_unknown_weight=e.rival_unknown_weight,

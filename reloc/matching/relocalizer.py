@@ -346,8 +346,8 @@ class Relocalizer:
     # -- one query -------------------------------------------------------------------------------------------------
 
     def _tightened(self, hyps, used: PlaneSet, vs_ptr, vs_pts) -> "_Hypotheses":
-        """One hypothesis per mode of ``hyps``: its leader refined over its matched planes (least squares) and
-        verified again at the final tolerances, as the winner will be.
+        """One hypothesis per mode of ``hyps`` (the ``decision_modes`` best): its leader refined over its matched
+        planes (least squares) and verified again at the final tolerances, as the winner will be.
 
         A look-alike pose matches some planes only within the loose search tolerances (a door 6 cm deep in its niche
         taken for the wall beside it, in a corridor turned end for end); refined and held to
@@ -360,6 +360,7 @@ class Relocalizer:
         group = np.empty(len(hyps), np.int32)
         leaders = K.group_poses(np.ascontiguousarray(hyps.R), np.ascontiguousarray(hyps.t), order,
                                 p.distinct_translation_m, p.distinct_rotation_rad, group)
+        leaders = leaders[: p.decision_modes]  # in order of quality: the modes that can still matter
         R = hyps.R[leaders].copy()
         t = hyps.t[leaders].copy()
         for k, a in enumerate(leaders):
