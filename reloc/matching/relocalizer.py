@@ -433,7 +433,7 @@ class Relocalizer:
                 f"{S} submap planes and {len(self.index)} map planes; at least {min_matched} needed", counts, timings
             ))
         hyps = _Hypotheses(S)
-        judged = hyps
+        coarse = judged = hyps
         decision = Decision(False, "no hypothesis passed verification", -1, 0.0, 0.0, 0)
         rounds = range(min(p.initial_planes, S), S + 1) if p.incremental else [S]
         prev = 0
@@ -501,6 +501,13 @@ class Relocalizer:
         explained = float(hyps.explained[b])
         T = transform_from_rotation_translation(hyps.R[b], hyps.t[b])
         refined, why = p.refine_iterations == 0, ""
+        if judged is not coarse:
+            # Decided over refined poses: the winner's pose is already a least-squares pose; refine on from its
+            # matches at the final tolerances (its sharp matches alone may not fix it, e.g. along a corridor).
+            v = self.verify(used, vs_ptr, vs_pts, T[None, :3, :3], T[None, :3, 3], hyps.cand[b: b + 1],
+                            require_triplet=False, tight=True)
+            match_row, proj_row, explained = v.match[0], v.proj[0], float(v.explained[0])
+            refined = bool(v.passed[0])
         for _ in range(p.refine_iterations):
             T_new = self.refine(used, match_row, proj_row)
             if T_new is None:
