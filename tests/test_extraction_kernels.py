@@ -317,9 +317,12 @@ def _refit_sums_numpy(pts, start, plane_of_voxel, planes, band, refs, coeff, ste
     return out
 
 
+@pytest.mark.parametrize("outliers", [300, 0])
 @pytest.mark.parametrize("step", [1, 4])
-def test_refinement_pass_sums_match_numpy(step):
-    """The refit sums of the refinement pass (all points, and the cheap 1-in-4 pass), against NumPy."""
+def test_refinement_pass_sums_match_numpy(step, outliers):
+    """The refit sums of the refinement pass (all points, and the cheap 1-in-4 pass), against NumPy; without
+    outliers every point of a voxel with a plane is inside its band, where the plain sums come from the voxel's
+    moments instead of point by point."""
     from reloc.extraction import _kernels_finalize as kfin
 
     rng = np.random.default_rng(5)
@@ -329,7 +332,7 @@ def test_refinement_pass_sums_match_numpy(step):
     pts = np.concatenate([
         _plane_points(rng, 3000, n, d, 0.004, extent=0.6, centre=c)
         for (n, d), c in zip(walls, ([0.0, 0.0, 2.4], [-1.0, 0.0, 2.4]))
-    ] + [rng.uniform([-1.5, -0.7, 1.5], [0.7, 0.7, 3.2], size=(300, 3))]).astype(np.float32)
+    ] + [rng.uniform([-1.5, -0.7, 1.5], [0.7, 0.7, 3.2], size=(outliers, 3))]).astype(np.float32)
     g = voxelize(pts, voxel_size_m=0.25)
     planes = np.array([np.r_[n, d] for n, d in walls])  # offsets > 0: normals toward the sensor
     # Each voxel takes the plane nearer its centroid when within 3 cm; some voxels have none.
@@ -351,6 +354,11 @@ def test_refinement_pass_sums_match_numpy(step):
     )
     ref = _refit_sums_numpy(g.points, g.start, plane_of_voxel, planes, band, refs, coeff, step)
     assert ref["n"].min() > 100  # both planes hold points of the pass
+    if step == 1:  # both paths taken: voxels with every point inside the band and voxels with some outside
+        voxel_of = np.repeat(np.arange(len(g)), g.counts)
+        outside = np.bincount(voxel_of, weights=ref["point_plane"] < 0, minlength=len(g))
+        with_plane = plane_of_voxel >= 0
+        assert np.any(outside[with_plane] == 0) and np.any(outside[with_plane] > 0)
     assert np.allclose(acc["w"], ref["w"], rtol=1e-9)
     assert np.allclose(acc["s"], ref["s"], rtol=1e-9, atol=1e-9 * ref["w"].max())
     assert np.allclose(acc["S"], ref["S"], rtol=1e-9, atol=1e-9 * ref["w"].max())

@@ -156,11 +156,56 @@ def _subsample_voxel(sorted_pts, point_bits, step, by_order, a, b, q, planes, ba
 
 
 @njit(fastmath={"reassoc", "contract"}, error_model="numpy")
-def _single_plane_voxel(sorted_pts, a, b, q, planes, band, power, coeff, ray_mode, point_plane,
-                        accumulate, use_noise, refs, acc_w, acc_s, acc_S, acc_n, acc_sum, sup, scratch):
-    """:func:`assign_points` for a voxel whose only candidate is plane ``q`` (most voxels): no corner test, and two
-    branch-free loops (distances, then weighted sums) that vectorise. ``scratch`` (3, >= b - a) float64. Returns the
-    number of points assigned."""
+def _weighted_sums_only(sorted_pts, a, b, q, ray_mode, use_noise, rx, ry, rz, acc_w, acc_s, acc_S, scratch):
+    """The weighted refit sums of :func:`_single_plane_voxel` alone (``scratch`` rows: u, g, Tukey's t, x, y, z)."""
+    W = s0 = s1 = s2 = s3 = s4 = s5 = s6 = s7 = s8 = 0.0
+    for j in range(a, b):
+        px = scratch[3, j - a]
+        py = scratch[4, j - a]
+        pz = scratch[5, j - a]
+        t = scratch[2, j - a]
+        w = t * t
+        if use_noise:
+            zz = pz if pz > MIN_DEPTH else MIN_DEPTH
+            g = scratch[1, j - a]
+            w *= g * g if ray_mode else g * g / (zz * zz)
+        x = px - rx
+        y = py - ry
+        z = pz - rz
+        W += w
+        s0 += w * x
+        s1 += w * y
+        s2 += w * z
+        s3 += w * x * x
+        s4 += w * x * y
+        s5 += w * x * z
+        s6 += w * y * y
+        s7 += w * y * z
+        s8 += w * z * z
+    acc_w[q] += W
+    acc_s[q, 0] += s0
+    acc_s[q, 1] += s1
+    acc_s[q, 2] += s2
+    acc_S[q, 0, 0] += s3
+    acc_S[q, 0, 1] += s4
+    acc_S[q, 0, 2] += s5
+    acc_S[q, 1, 1] += s6
+    acc_S[q, 1, 2] += s7
+    acc_S[q, 2, 2] += s8
+
+
+@njit(fastmath={"reassoc", "contract"}, error_model="numpy")
+def _single_plane_voxel(sorted_pts, v, a, b, q, planes, band, power, coeff, ray_mode, point_plane,
+                        accumulate, use_noise, refs, counts, sums, scatters, acc_w, acc_s, acc_S, acc_n, acc_sum, sup,
+                        scratch):
+    """:func:`assign_points` for a voxel ``v`` whose only candidate is plane ``q`` (most voxels): no corner test,
+    and branch-free loops (distances, then weighted sums) that vectorise. ``scratch`` (6, >= b - a) float64 (u, g,
+    Tukey's base t, x, y, z per point).
+    Returns the number of points assigned.
+
+    When every point of the voxel is inside the band with a non-zero weight (most voxels), the plain sums (points
+    of non-zero weight, supporting points) are the voxel's moments ``counts[v]``, ``sums[v]``, ``scatters[v]``
+    (about the origin), so only the weighted sums are made point by point: the same figures to rounding."""
     nx = planes[q, 0]
     ny = planes[q, 1]
     nz = planes[q, 2]
@@ -180,26 +225,58 @@ def _single_plane_voxel(sorted_pts, a, b, q, planes, band, power, coeff, ray_mod
         u = abs(npd + d) * g / den
         scratch[0, j - a] = u
         scratch[1, j - a] = g
+        # float64 copies for the sums below (contiguous rows, not strided float32 loads again)
+        scratch[3, j - a] = px
+        scratch[4, j - a] = py
+        scratch[5, j - a] = pz
+    inv_b2 = 1.0 / (bq * bq)
+    n_pos = 0
     for j in range(a, b):
-        inside = scratch[0, j - a] <= bq
+        u = scratch[0, j - a]
+        inside = u <= bq
         n_in += 1 if inside else 0
         point_plane[j] = q if inside else -1
+        # Tukey's weight base, stored so that the sums below see the same value that was counted here.
+        t = 1.0 - u * u * inv_b2
+        t = t if t > 0.0 else 0.0
+        n_pos += 1 if t > 0.0 else 0
+        scratch[2, j - a] = t
     if not accumulate:
         return n_in
-    inv_b2 = 1.0 / (bq * bq)
     rx = refs[q, 0]
     ry = refs[q, 1]
     rz = refs[q, 2]
+    if n_in == b - a and n_pos == b - a:
+        _weighted_sums_only(sorted_pts, a, b, q, ray_mode, use_noise, rx, ry, rz, acc_w, acc_s, acc_S, scratch)
+        # Plain sums from the voxel's moments: about the origin for acc_sum, about refs[q] for sup.
+        n = np.float64(counts[v])
+        sx = sums[v, 0]
+        sy = sums[v, 1]
+        sz = sums[v, 2]
+        acc_n[q] += counts[v]
+        acc_sum[q, 0] += sx
+        acc_sum[q, 1] += sy
+        acc_sum[q, 2] += sz
+        sup[q, 0] += n
+        sup[q, 1] += sx - n * rx
+        sup[q, 2] += sy - n * ry
+        sup[q, 3] += sz - n * rz
+        sup[q, 4] += scatters[v, 0, 0] - 2.0 * rx * sx + n * rx * rx
+        sup[q, 5] += scatters[v, 0, 1] - rx * sy - ry * sx + n * rx * ry
+        sup[q, 6] += scatters[v, 0, 2] - rx * sz - rz * sx + n * rx * rz
+        sup[q, 7] += scatters[v, 1, 1] - 2.0 * ry * sy + n * ry * ry
+        sup[q, 8] += scatters[v, 1, 2] - ry * sz - rz * sy + n * ry * rz
+        sup[q, 9] += scatters[v, 2, 2] - 2.0 * rz * sz + n * rz * rz
+        return n_in
     W = s0 = s1 = s2 = s3 = s4 = s5 = s6 = s7 = s8 = 0.0
     c0 = c1 = c2 = cn = 0.0
     h0 = h1 = h2 = h3 = h4 = h5 = h6 = h7 = h8 = h9 = 0.0
     for j in range(a, b):
-        px = np.float64(sorted_pts[j, 0])
-        py = np.float64(sorted_pts[j, 1])
-        pz = np.float64(sorted_pts[j, 2])
+        px = scratch[3, j - a]
+        py = scratch[4, j - a]
+        pz = scratch[5, j - a]
         u = scratch[0, j - a]
-        t = 1.0 - u * u * inv_b2
-        t = t if t > 0.0 else 0.0
+        t = scratch[2, j - a]
         w = t * t
         if use_noise:
             zz = pz if pz > MIN_DEPTH else MIN_DEPTH
@@ -551,9 +628,9 @@ def assign_points(sorted_pts, point_bits, step, by_order, voxel_start, nv, voxel
                 _subsample_voxel(sorted_pts, point_bits, step, by_order, a, b, cand[0], planes, band, power, coeff,
                                  ray_mode, use_noise, refs, acc_w, acc_s, acc_S, acc_n, acc_sum, scratch)
                 continue
-            n_assigned += _single_plane_voxel(sorted_pts, a, b, cand[0], planes, band, power, coeff, ray_mode,
-                                              point_plane, accumulate, use_noise, refs, acc_w, acc_s, acc_S, acc_n,
-                                              acc_sum, sup, scratch)
+            n_assigned += _single_plane_voxel(sorted_pts, v, a, b, cand[0], planes, band, power, coeff, ray_mode,
+                                              point_plane, accumulate, use_noise, refs, counts, sums, scatters,
+                                              acc_w, acc_s, acc_S, acc_n, acc_sum, sup, scratch)
             continue
         n_assigned += _multi_plane_voxel(sorted_pts, point_bits, step, by_order, a, b, cand, nc, planes, band, power,
                                          coeff, ray_mode, point_plane, accumulate, use_noise, refs, acc_w, acc_s,
