@@ -282,6 +282,47 @@ def test_assemble_statistics_match_numpy(sample_m):
     assert ps.labels is None
 
 
+def test_plane_set_renumbers_the_refinement_assignment_like_numpy():
+    """The refinement's last pass leaves its point assignment in its own numbering with a table to the merged
+    planes (fragments merged, bevels dropped); the plane set applies the table point by point. Same plane set and
+    label image as from the assignment renumbered by NumPy first (identity table), for a table that merges and
+    drops planes."""
+    from dataclasses import replace
+
+    from reloc.extraction.merge import refine_merged_planes
+
+    rng = np.random.default_rng(8)
+    walls = [(np.array([0.3, 0.0, -1.0]), 2.5, [0.0, 0.0, 2.4]), (np.array([-1.0, 0.1, -0.2]), 1.2, [-1.0, 0.0, 2.4]),
+             (np.array([0.3, 0.0, -1.0]), 2.5, [0.9, 0.0, 2.7])]  # the third: more of the first wall
+    pts = np.concatenate([_plane_points(rng, 3000, n, d, 0.003, extent=0.5, centre=np.array(c)) for n, d, c in walls]
+                         + [rng.uniform([-1.5, -0.7, 1.5], [1.5, 0.7, 3.2], size=(200, 3))]).astype(np.float32)
+    g = voxelize(pts, voxel_size_m=0.2)
+    vp = fit_voxel_planes(g)
+    refine_voxel_planes(g, vp)
+    mp = refine_merged_planes(g, merge_voxel_planes(g, vp), point_step=1)
+    assert mp.point_table is not None and len(mp) >= 2
+    m = len(pts)
+    renumbered = np.where(mp.point_plane >= 0, mp.point_table[np.maximum(mp.point_plane, 0)], -1).astype(np.int32)
+    numpy_first = replace(mp, point_plane=renumbered, point_table=np.arange(len(mp), dtype=np.int32))
+    # The same assignment in a numbering of a pass whose planes merged and dropped: reversed, every plane twice,
+    # and one dropped plane that takes half of the points without a plane.
+    n = len(mp)
+    table = np.r_[np.arange(n)[::-1], np.arange(n), -1].astype(np.int32)
+    ids = {o: np.flatnonzero(table == o) for o in range(-1, n)}
+    pick = rng.integers(0, 2, size=m)
+    raw = np.array([ids[o][k % len(ids[o])] for o, k in zip(renumbered, pick)], np.int32)
+    raw[(renumbered < 0) & (pick == 0)] = -1
+    mp = replace(mp, point_plane=raw, point_table=table)
+    kw = dict(pixels=np.arange(m, dtype=np.int32), image_shape=(1, m), min_plane_points=50, min_plane_area_m2=0.0)
+    got = assemble_plane_set(g, mp, **kw)
+    ref = assemble_plane_set(g, numpy_first, **kw)
+    assert len(got) == len(ref) >= 2
+    for name in ("normals", "offsets", "centroids", "counts", "radii", "areas", "sums", "scatters", "sample_points",
+                 "labels"):
+        assert np.array_equal(getattr(got, name), getattr(ref, name)), name
+    assert (got.labels >= 0).sum() == got.counts.sum()
+
+
 def _refit_sums_numpy(pts, start, plane_of_voxel, planes, band, refs, coeff, step):
     """The refinement pass of ``assign_points`` for voxels whose only candidate is their own plane (no neighbours),
     Kinect law, depth noise along the rays: plane of every point, Tukey x inverse-variance weighted moments about

@@ -757,10 +757,12 @@ def plane_stats(sorted_pts, point_plane, m, counts, sums, scatters):
 
 
 @njit(fastmath={"contract"}, error_model="numpy")
-def plane_extent(sorted_pts, point_plane, m, centroids, tb, area_cell, area_grid, area_off, occupied, sample_cell,
-                 sample_grid, sample_off, sample_acc, radii, areas, with_labels, sorted_src, src_is_pixel, pix, remap,
-                 width, height, stride, labels):
-    """One pass over the supporting points: radius of each plane (largest distance from its centroid), its occupied
+def plane_extent(sorted_pts, point_plane, table, m, centroids, tb, area_cell, area_grid, area_off, occupied,
+                 sample_cell, sample_grid, sample_off, sample_acc, radii, areas, with_labels, sorted_src, src_is_pixel,
+                 pix, remap, width, height, stride, labels):
+    """One pass over the supporting points (point ``j`` on plane ``table[point_plane[j]]``, none where either is
+    -1: the refinement's assignment renumbered here, not in a pass of its own): radius of each plane (largest
+    distance from its centroid), its occupied
     ``area_cell`` squares (``areas`` = their number times ``area_cell^2``), per-cell point sums for the samples
     (``sample_acc`` rows ``[n, sx, sy, sz]``) and, ``with_labels``, the label image (H * W,) int32: ``remap[plane]``
     at the pixel of every supporting point (the whole ``stride x stride`` block it stands for), -1 elsewhere.
@@ -796,6 +798,9 @@ def plane_extent(sorted_pts, point_plane, m, centroids, tb, area_cell, area_grid
     q = -1
     for j in range(m):
         p = point_plane[j]
+        if p < 0:
+            continue
+        p = table[p]
         if p < 0:
             continue
         if p != last:
@@ -970,7 +975,7 @@ def _warmup() -> None:
     cent = sums / max(counts[0], 1)
     for stride in (1, 2):
         for src_is_pixel in (False, True):
-            plane_extent(pts, pp, m, cent, tb, 0.1, ag, aoff, occ, 0.1, sg, soff, acc, np.zeros(1), areas, True,
+            plane_extent(pts, pp, np.array([0], np.int32), m, cent, tb, 0.1, ag, aoff, occ, 0.1, sg, soff, acc, np.zeros(1), areas, True,
                          np.arange(m).astype(np.int32) % 20, src_is_pixel, np.arange(20).astype(np.int32),
                          np.array([0], np.int32), 5, 4, stride, labels)
     sp = np.zeros((max(ns, 1), 3), np.float32)

@@ -65,12 +65,16 @@ def assemble_plane_set(
     counts = np.zeros(n_all, np.int64)
     sums = np.zeros((n_all, 3))
     scatters = np.zeros((n_all, 3, 3))
-    if merged.point_plane is not None and len(merged.point_plane) == m and merged.support is not None:
-        # The refinement's last pass already assigned every point and summed each plane's support.
+    if (merged.point_plane is not None and len(merged.point_plane) == m and merged.support is not None
+            and merged.point_table is not None):
+        # The refinement's last pass already assigned every point (in its numbering: point_table maps it to the
+        # merged planes) and summed each plane's support.
         point_plane = merged.point_plane
+        table = merged.point_table
         counts, sums, scatters = (np.array(x) for x in merged.support)
     else:
         point_plane = ws.get("as_point_plane", m, np.int32)
+        table = np.arange(n_all, dtype=np.int32)
         z3 = np.zeros((1, 3))
         kf.assign_points(
             grid.points, grid.points.view(np.int32), 1, False, grid.start, len(grid), grid.keys, grid.box, grid.dense,
@@ -112,8 +116,8 @@ def assemble_plane_set(
     src_is_pixel = grid.source_is_pixel and pixels is None
     pix = np.ascontiguousarray(pixels, dtype=np.int32) if with_labels and not src_is_pixel else np.zeros(1, np.int32)
     lab = labels.reshape(-1) if with_labels else np.zeros(1, np.int32)
-    kf.plane_extent(grid.points, point_plane, m, centroids, tb, float(area_patch_m), area_grid, area_off, occupied,
-                    float(sample_spacing_m), sample_grid, sample_off, sample_acc, radii, areas, with_labels,
+    kf.plane_extent(grid.points, point_plane, table, m, centroids, tb, float(area_patch_m), area_grid, area_off,
+                    occupied, float(sample_spacing_m), sample_grid, sample_off, sample_acc, radii, areas, with_labels,
                     grid.source, src_is_pixel, pix, remap, w, h, int(pixel_stride), lab)
     keep = order[areas[order] >= min_plane_area_m2].astype(np.int64)
     if len(keep) < len(order):  # planes too small in area: renumber the labels

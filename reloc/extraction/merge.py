@@ -35,9 +35,9 @@ class MergedPlanes:
     - ``covariances`` (P, 4, 4) of ``(n, d)`` and ``variance_factors`` (P,) (``s0^2``, 1 for an exact noise law).
     - ``n_fragment_merges``: merges made by the under-grown steps.
     - ``point_plane``: after a refinement over all points, the plane of every point (sorted order, -1 for none)
-      from that pass, renumbered to these planes (the plane set reuses it instead of assigning the points again),
-      and ``support`` = ``(counts (P,), sums (P, 3), scatters (P, 3, 3))`` the plain moments about the origin of
-      the points it assigned to each plane.
+      from that pass, in the pass's numbering: ``point_table`` (int32) maps it to these planes (-1: dropped) (the
+      plane set reuses both instead of assigning the points again); and ``support`` = ``(counts (P,), sums (P, 3),
+      scatters (P, 3, 3))`` the plain moments about the origin of the points it assigned to each plane.
     """
 
     plane_of_voxel: np.ndarray
@@ -54,6 +54,7 @@ class MergedPlanes:
     n_fragment_merges: int
     point_plane: np.ndarray | None = None
     support: tuple | None = None
+    point_table: np.ndarray | None = None
 
     def __len__(self) -> int:
         return int(self.planes.shape[0])
@@ -261,14 +262,14 @@ def refine_merged_planes(
                           fragment_args=fragment_args, n_merges_before=merged.n_fragment_merges)
     if point_step != 1:
         return out
-    # Renumber the pass's assignment: removed bevels lose their points, merged fragments go to their survivor.
+    # The pass's planes to the output's (the plane set applies it to the points): removed bevels lose their
+    # points, merged fragments go to their survivor.
     old_to_kept = np.full(n, -1, np.int32)
     old_to_kept[keep] = np.arange(int(keep.sum()), dtype=np.int32)
     # (np.where evaluates both branches: with no plane kept there is nothing to index.)
     table = (np.where(old_to_kept >= 0, kept_to_final[np.maximum(old_to_kept, 0)], -1) if len(kept_to_final)
              else np.full(n, -1)).astype(np.int32)
-    kfin.remap_points(point_plane, m, table)
     n_out = len(out)
     support = (np.zeros(n_out, np.int64), np.zeros((n_out, 3)), np.zeros((n_out, 3, 3)))
     kfin.support_moments(sup, refs, table, n_out, *support)
-    return replace(out, point_plane=point_plane[:m], support=support)
+    return replace(out, point_plane=point_plane[:m], point_table=table, support=support)
