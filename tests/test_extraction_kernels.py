@@ -520,9 +520,12 @@ def test_multi_candidate_voxel_matches_numpy(ray_mode, step):
     n_in = kfin._multi_plane_voxel(
         pts, pts.view(np.int32), step, True, 0, m, cand, len(cand), planes, band, 2, coeff, ray_mode, point_plane, True,
         True, refs, acc["w"], acc["s"], acc["S"], acc["n"], acc["sum"], acc["amb"], acc["sup"],
-        np.zeros((kfin.SCRATCH_ROWS, m)), np.zeros((kfin.MAX_CANDIDATES, kfin.MAX_CANDIDATES), np.bool_))
+        np.zeros((kfin.SCRATCH_ROWS, m)), np.zeros((kfin.MAX_CANDIDATES, kfin.MAX_CANDIDATES), np.bool_),
+        np.full(kfin.MAX_CANDIDATES, 99, np.int64))
     ref = _multi_candidate_numpy(pts[::step].astype(np.float64), cand, planes, band, refs, coeff, ray_mode)
     assert n_in == int((ref["point_plane"] >= 0).sum())
+    # The fourth candidate (y = 1.5) is nearest to no point: its sums are skipped and must stay zero.
+    assert not np.any(ref["point_plane"] == 3) and not acc["w"][3] and not acc["sup"][3].any()
     assert ref["n"][0] > 20 and ref["n"][1] > 20 and ref["amb"].sum() > 5  # both walls fit, corner points seen
     wmax = ref["w"].max()
     assert np.allclose(acc["w"], ref["w"], rtol=1e-9)

@@ -403,12 +403,13 @@ def _nearest_candidates(scratch, mloc, cand, nc, planes, band, power, coeff, ray
 @njit(error_model="numpy")
 def _multi_plane_voxel(sorted_pts, point_bits, step, by_order, a, b, cand, nc, planes, band, power, coeff, ray_mode,
                        point_plane, accumulate, use_noise, refs, acc_w, acc_s, acc_S, acc_n, acc_sum, acc_amb, sup,
-                       scratch, parallel):
+                       scratch, parallel, n_of):
     """:func:`assign_points` for a voxel with several candidate planes (all its points, or about 1 in ``step`` of
     them for a cheap refit pass, which assigns nothing). In phases over a float64 copy of the points in ``scratch``
     (``SCRATCH_ROWS``, >= b - a): the nearest candidate of every point (:func:`_nearest_candidates`, vectorised),
     whether it is near a corner (scalar, from the stored depth errors), then per candidate the masked sums of its
-    points (:func:`_masked_sums`, vectorised). ``parallel`` (MAX_CANDIDATES, MAX_CANDIDATES) bool scratch.
+    points (:func:`_masked_sums`, vectorised; skipped for a candidate nearest to none of them). ``parallel``
+    (MAX_CANDIDATES, MAX_CANDIDATES) bool and ``n_of`` (MAX_CANDIDATES,) int64 scratch.
     Returns the number of points assigned."""
     mloc = _gather_points(sorted_pts, point_bits, step, by_order, a, b, scratch)
     _nearest_candidates(scratch, mloc, cand, nc, planes, band, power, coeff, ray_mode)
@@ -421,6 +422,7 @@ def _multi_plane_voxel(sorted_pts, point_bits, step, by_order, a, b, cand, nc, p
                 parallel[k, o] = (planes[c, 0] * planes[q, 0] + planes[c, 1] * planes[q, 1]
                                   + planes[c, 2] * planes[q, 2]) > COS_CORNER
     n_in = 0
+    n_of[:nc] = 0
     for i in range(mloc):
         best = int(scratch[5, i])
         if best < 0:
@@ -431,6 +433,7 @@ def _multi_plane_voxel(sorted_pts, point_bits, step, by_order, a, b, cand, nc, p
         if step == 1:
             point_plane[a + i] = q
         n_in += 1
+        n_of[best] += 1
         if not accumulate:
             continue
         eb = scratch[SCR_E + best, i]
@@ -449,6 +452,8 @@ def _multi_plane_voxel(sorted_pts, point_bits, step, by_order, a, b, cand, nc, p
     if not accumulate:
         return n_in
     for k in range(nc):
+        if n_of[k] == 0:  # no point is nearest to this candidate: nothing to sum
+            continue
         q = cand[k]
         bq = band[q]
         inv_b2 = 1.0 / (bq * bq)
@@ -599,6 +604,7 @@ def assign_points(sorted_pts, point_bits, step, by_order, voxel_start, nv, voxel
     """
     cand = np.empty(MAX_CANDIDATES, np.int64)
     parallel = np.empty((MAX_CANDIDATES, MAX_CANDIDATES), np.bool_)
+    n_of = np.empty(MAX_CANDIDATES, np.int64)
     n_planes = planes.shape[0]
     if accumulate:
         for p in range(n_planes):
@@ -634,7 +640,7 @@ def assign_points(sorted_pts, point_bits, step, by_order, voxel_start, nv, voxel
             continue
         n_assigned += _multi_plane_voxel(sorted_pts, point_bits, step, by_order, a, b, cand, nc, planes, band, power,
                                          coeff, ray_mode, point_plane, accumulate, use_noise, refs, acc_w, acc_s,
-                                         acc_S, acc_n, acc_sum, acc_amb, sup, scratch, parallel)
+                                         acc_S, acc_n, acc_sum, acc_amb, sup, scratch, parallel, n_of)
     if accumulate:
         for p in range(n_planes):
             acc_S[p, 1, 0] = acc_S[p, 0, 1]
