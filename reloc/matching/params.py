@@ -56,7 +56,7 @@ class MatchingParams:
     min_score: float = 0.0
     min_ambiguity_ratio: float = 1.5
     probe_twins: bool = True
-    probe_planes: int = 5
+    probe_planes: int = 3
     tight_decision: bool = True
     decision_max_offset_m: float = 0.03
     decision_modes: int = 6
