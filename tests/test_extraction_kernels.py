@@ -212,6 +212,37 @@ def test_merging_tiny_case_matches_numpy():
     assert len(mp0) == len(vp.planar)
 
 
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_pack_regions_matches_numpy(seed):
+    """Merge chains resolved to their survivor, survivors numbered in order, voxels' planes and voxel counts, against
+    NumPy (pointer jumping to the fixed point, as the pipeline did before the kernel)."""
+    rng = np.random.default_rng(seed)
+    nr, nv = 40, 300
+    # A forest: each region merges into an earlier one (chains of any length) or survives.
+    parent = np.arange(nr, dtype=np.int32)
+    for r in range(1, nr):
+        if rng.random() < 0.6:
+            parent[r] = rng.integers(0, r)
+    parent = parent.copy()
+    plane_of_region = np.where(rng.random(nv) < 0.2, -1, rng.integers(0, nr, nv)).astype(np.int32)
+    root = parent.copy()
+    for _ in range(nr):
+        root = root[root]
+    survivors = np.flatnonzero(root == np.arange(nr))
+    final = np.full(nr, -1, np.int32)
+    final[survivors] = np.arange(len(survivors))
+    ref_pov = np.where(plane_of_region >= 0, final[root[np.maximum(plane_of_region, 0)]], -1)
+    ref_nvox = np.bincount(ref_pov[ref_pov >= 0], minlength=len(survivors))
+    r2p = np.full(nr, -9, np.int32)
+    surv = np.full(nr, -9, np.int64)
+    pov = np.full(nv, -9, np.int32)
+    nvox = np.full(nr, -9, np.int64)
+    ns = km.pack_regions(parent, plane_of_region, r2p, surv, pov, nvox)
+    assert ns == len(survivors) and 5 < ns < nr - 5  # chains merged and survivors left
+    assert np.array_equal(surv[:ns], survivors) and np.array_equal(r2p, final[root])
+    assert np.array_equal(pov, ref_pov) and np.array_equal(nvox[:ns], ref_nvox)
+
+
 def test_fragment_merge_kernel_on_two_coplanar_regions():
     """Two coplanar fragments side by side merge; a parallel one 0.3 m behind does not."""
     rng = np.random.default_rng(9)

@@ -277,6 +277,42 @@ def merge_fragments(nr, rplane, rmom, rscat, rcount, rsum, rneff, rrad, ray_mode
     return merges
 
 
+@njit(error_model="numpy")
+def pack_regions(parent, plane_of_region, region_to_plane, survivors, plane_of_voxel, n_voxels):
+    """Regions after :func:`merge_fragments` numbered as planes: the surviving regions (``parent[r] == r``) in
+    increasing order into ``survivors``, every region's plane (that of the survivor its merge chain ends in) into
+    ``region_to_plane`` (R,), every voxel's plane (``plane_of_region`` (V,) region or -1) into ``plane_of_voxel``
+    and the voxels per plane into ``n_voxels`` (zeroed here). Returns the number of planes. A chain is followed for
+    at most R steps."""
+    nr = parent.shape[0]
+    ns = 0
+    for r in range(nr):
+        if parent[r] == r:
+            region_to_plane[r] = ns
+            survivors[ns] = r
+            ns += 1
+        else:
+            region_to_plane[r] = -1
+    for r in range(nr):
+        if parent[r] == r:
+            continue
+        root = parent[r]
+        steps = 1
+        while parent[root] != root and steps < nr:
+            root = parent[root]
+            steps += 1
+        region_to_plane[r] = region_to_plane[root]
+    for k in range(ns):
+        n_voxels[k] = 0
+    for v in range(plane_of_region.shape[0]):
+        g = plane_of_region[v]
+        o = region_to_plane[g] if g >= 0 else -1
+        plane_of_voxel[v] = o
+        if o >= 0:
+            n_voxels[o] += 1
+    return ns
+
+
 @register_warmup
 def _warmup() -> None:
     nv = 2
@@ -309,5 +345,8 @@ def _warmup() -> None:
         nr = grow_regions(nv, flags, vkey, box, dense, cellmap, tk, tv, np.arange(nv), planes, counts, sums, wscat, eig,
                           wmom, wscat, n_eff, radius, dense, 2, 1.425e-3, 0.17, 2.0, 0.04, 3.0, 4.0, 0.01, True,
                           region_of, rmom, rscat, rplane, rcount, rsum, rneff, rrad, queue)
+        parent = np.arange(nr).astype(np.int32)
         merge_fragments(nr, rplane, rmom, rscat, rcount, rsum, rneff, rrad, dense, 2, 1.425e-3, 0.14, 2.0, 0.09, 0.05,
-                        2.0, 4.0, 0.01, 1.5, np.empty(nr, np.int32), 5)
+                        2.0, 4.0, 0.01, 1.5, parent, 5)
+        pack_regions(parent, region_of, np.empty(nr, np.int32), np.empty(nr, np.int64), np.empty(nv, np.int32),
+                     np.empty(nr, np.int64))

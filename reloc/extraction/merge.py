@@ -94,24 +94,15 @@ def _merge_and_pack(plane_of_region, rplane, rmom, rscat, rcount, rsum, rneff, r
     if merge and nr > 1:
         n_merges = km.merge_fragments(nr, rplane, rmom, rscat, rcount, rsum, rneff, rrad, ray, *fragment_args,
                                       parent, 16)
-    # Resolve merge chains to their surviving region, and number the survivors.
-    root = parent.copy()
-    for _ in range(nr):
-        nxt = root[root]
-        if np.array_equal(nxt, root):
-            break
-        root = nxt
-    survivors = np.flatnonzero(root == np.arange(nr))
-    final = np.full(nr, -1, np.int32)
-    final[survivors] = np.arange(len(survivors), dtype=np.int32)
-    reg = plane_of_region
-    if nr:
-        plane_of_voxel = np.where(reg >= 0, final[root[np.maximum(reg, 0)]], -1).astype(np.int32)
-    else:
-        plane_of_voxel = np.full(reg.shape, -1, np.int32)
-    n_voxels = np.bincount(plane_of_voxel[plane_of_voxel >= 0], minlength=len(survivors)).astype(np.int64)
+    # Resolve merge chains to their surviving region, number the survivors, and the voxels' planes.
+    region_to_plane = np.empty(nr, np.int32)
+    survivors = np.empty(nr, np.int64)
+    plane_of_voxel = np.empty(plane_of_region.shape[0], np.int32)
+    n_voxels = np.empty(nr, np.int64)
+    ns = km.pack_regions(parent, plane_of_region, region_to_plane, survivors, plane_of_voxel, n_voxels)
+    survivors = survivors[:ns]
+    n_voxels = n_voxels[:ns]
     covs, s0 = plane_covariances(rplane[survivors], rmom[survivors], rscat[survivors], rneff[survivors], ray_mode=ray)
-    region_to_plane = final[root] if nr else np.zeros(0, np.int32)
     return MergedPlanes(
         plane_of_voxel=plane_of_voxel, planes=rplane[survivors], wmoments=rmom[survivors],
         wscatters=rscat[survivors], n_eff=rneff[survivors], counts=rcount[survivors], sums=rsum[survivors],
