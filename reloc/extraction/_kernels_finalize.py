@@ -156,6 +156,34 @@ def _subsample_voxel(sorted_pts, point_bits, step, by_order, a, b, q, planes, ba
 
 
 @njit(fastmath={"reassoc", "contract"}, error_model="numpy")
+def _single_plane_assign(sorted_pts, a, b, q, planes, band, power, coeff, ray_mode, point_plane, scratch):
+    """:func:`_single_plane_voxel` without sums (the plane set's own assignment): the plane of every point, two
+    branch-free loops (distances into ``scratch[0]``, then the band test). Returns the number of points assigned."""
+    nx = planes[q, 0]
+    ny = planes[q, 1]
+    nz = planes[q, 2]
+    d = planes[q, 3]
+    bq = band[q]
+    for j in range(a, b):
+        px = np.float64(sorted_pts[j, 0])
+        py = np.float64(sorted_pts[j, 1])
+        pz = np.float64(sorted_pts[j, 2])
+        npd = nx * px + ny * py + nz * pz
+        zz = pz if pz > MIN_DEPTH else MIN_DEPTH
+        g = zz / _sigma_z(zz, power, coeff)
+        an = abs(npd)
+        lo = MIN_INCIDENCE * zz
+        den = (an if an > lo else lo) if ray_mode else zz
+        scratch[0, j - a] = abs(npd + d) * g / den
+    n_in = 0
+    for j in range(a, b):
+        inside = scratch[0, j - a] <= bq
+        n_in += 1 if inside else 0
+        point_plane[j] = q if inside else -1
+    return n_in
+
+
+@njit(fastmath={"reassoc", "contract"}, error_model="numpy")
 def _weighted_sums_only(sorted_pts, a, b, q, ray_mode, use_noise, rx, ry, rz, acc_w, acc_s, acc_S, scratch):
     """The weighted refit sums of :func:`_single_plane_voxel` alone (``scratch`` rows: u, g, Tukey's t, x, y, z)."""
     W = s0 = s1 = s2 = s3 = s4 = s5 = s6 = s7 = s8 = 0.0
@@ -206,6 +234,8 @@ def _single_plane_voxel(sorted_pts, v, a, b, q, planes, band, power, coeff, ray_
     When every point of the voxel is inside the band with a non-zero weight (most voxels), the plain sums (points
     of non-zero weight, supporting points) are the voxel's moments ``counts[v]``, ``sums[v]``, ``scatters[v]``
     (about the origin), so only the weighted sums are made point by point: the same figures to rounding."""
+    if not accumulate:
+        return _single_plane_assign(sorted_pts, a, b, q, planes, band, power, coeff, ray_mode, point_plane, scratch)
     nx = planes[q, 0]
     ny = planes[q, 1]
     nz = planes[q, 2]
@@ -241,8 +271,6 @@ def _single_plane_voxel(sorted_pts, v, a, b, q, planes, band, power, coeff, ray_
         t = t if t > 0.0 else 0.0
         n_pos += 1 if t > 0.0 else 0
         scratch[2, j - a] = t
-    if not accumulate:
-        return n_in
     rx = refs[q, 0]
     ry = refs[q, 1]
     rz = refs[q, 2]
@@ -409,7 +437,8 @@ def _multi_plane_voxel(sorted_pts, point_bits, step, by_order, a, b, cand, nc, p
     (``SCRATCH_ROWS``, >= b - a): the nearest candidate of every point (:func:`_nearest_candidates`, vectorised),
     whether it is near a corner (scalar, from the stored depth errors), then per candidate the masked sums of its
     points (:func:`_masked_sums`, vectorised; skipped for a candidate nearest to none of them). ``parallel``
-    (MAX_CANDIDATES, MAX_CANDIDATES) bool and ``n_of`` (MAX_CANDIDATES,) int64 scratch.
+    (MAX_CANDIDATES, MAX_CANDIDATES) bool and ``n_of`` (MAX_CANDIDATES,) int64 scratch (1 where a candidate is
+    some point's nearest).
     Returns the number of points assigned."""
     mloc = _gather_points(sorted_pts, point_bits, step, by_order, a, b, scratch)
     _nearest_candidates(scratch, mloc, cand, nc, planes, band, power, coeff, ray_mode)
@@ -433,9 +462,9 @@ def _multi_plane_voxel(sorted_pts, point_bits, step, by_order, a, b, cand, nc, p
         if step == 1:
             point_plane[a + i] = q
         n_in += 1
-        n_of[best] += 1
         if not accumulate:
             continue
+        n_of[best] = 1  # a plain store: no chain through memory from point to point
         eb = scratch[SCR_E + best, i]
         lim = CORNER_BANDS * band[q]
         amb = False
@@ -633,6 +662,10 @@ def assign_points(sorted_pts, point_bits, step, by_order, voxel_start, nv, voxel
             if step > 1:
                 _subsample_voxel(sorted_pts, point_bits, step, by_order, a, b, cand[0], planes, band, power, coeff,
                                  ray_mode, use_noise, refs, acc_w, acc_s, acc_S, acc_n, acc_sum, scratch)
+                continue
+            if not accumulate:
+                n_assigned += _single_plane_assign(sorted_pts, a, b, cand[0], planes, band, power, coeff, ray_mode,
+                                                   point_plane, scratch)
                 continue
             n_assigned += _single_plane_voxel(sorted_pts, v, a, b, cand[0], planes, band, power, coeff, ray_mode,
                                               point_plane, accumulate, use_noise, refs, counts, sums, scatters,
