@@ -328,6 +328,12 @@ class EvaluationConfig(_Section):
         "(0: only the winner's own triplet), so a twin whose map lacks one plane of that triplet is still found "
         "(more planes find more twins, at the cost of recall and time: 5 took 3x the probe time).",
     )
+    probe_extent_tolerance_m: float = Field(
+        3.0, gt=0,
+        description="The twin probe frees the area and sphere-gap filters but keeps the signed-extent filter within "
+        "this tolerance (free, a 2,000-plane map gave 88,000 candidates and 0.3 s per probe; 3 m keeps every twin "
+        "of the suite).",
+    )
     tight_decision: bool = Field(
         True,
         description="Decide between poses after refining every mode over its matched planes and verifying it at "

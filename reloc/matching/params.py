@@ -57,6 +57,7 @@ class MatchingParams:
     min_ambiguity_ratio: float = 1.5
     probe_twins: bool = True
     probe_planes: int = 3
+    probe_extent_tolerance_m: float = 3.0
     tight_decision: bool = True
     decision_max_offset_m: float = 0.03
     decision_modes: int = 6
@@ -153,6 +154,7 @@ class MatchingParams:
             min_ambiguity_ratio=e.min_ambiguity_ratio,
             probe_twins=e.probe_twins,
             probe_planes=e.probe_planes,
+            probe_extent_tolerance_m=e.probe_extent_tolerance_m,
             tight_decision=e.tight_decision,
             decision_max_offset_m=e.decision_max_offset_m,
             decision_modes=e.decision_modes,

@@ -303,7 +303,9 @@ class Relocalizer:
         mapping run saw only there) is found through the other planes both places share.
         """
         p = self.params
-        relaxed = replace(p, extent_tolerance_m=1e3, min_area_ratio=0.0, gap_tolerance_m=1e3)
+        # Areas and sphere gaps free (a twin the map covers in part has smaller planes farther apart); extents
+        # within probe_extent_tolerance_m, not free: on a 2,000-plane map that alone gave 88,000 candidates a probe.
+        relaxed = replace(p, extent_tolerance_m=p.probe_extent_tolerance_m, min_area_ratio=0.0, gap_tolerance_m=1e3)
         own = np.ascontiguousarray(np.asarray(winner_cand)[None, :3], dtype=np.int32)
         matched = np.flatnonzero(np.asarray(winner_match) >= 0)
         top = matched[np.argsort(-used.areas[matched], kind="stable")[: p.probe_planes]]
