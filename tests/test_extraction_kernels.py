@@ -7,8 +7,9 @@ import pytest
 
 from reloc.camera import Intrinsics
 from reloc.extraction import _kernels_merge as km
+from reloc.extraction import _kernels_voxel as kv
 from reloc.extraction.assemble import assemble_plane_set
-from reloc.extraction.backproject import depth_to_keyed_points, depth_to_points
+from reloc.extraction.backproject import depth_to_points
 from reloc.extraction.merge import merge_voxel_planes
 from reloc.extraction.voxel_planes import PLANAR, fit_voxel_planes, refine_voxel_planes
 from reloc.extraction.voxelize import frustum_box, voxelize, voxelize_keyed
@@ -36,11 +37,11 @@ def test_backproject_matches_numpy_and_drops_invalid(stride):
     assert np.array_equal(pix, (v * 32 + u)[ok])
     assert np.allclose(pts, ref, rtol=1e-6, atol=1e-6)
     assert np.all(np.isfinite(pts)) and np.all(pts[:, 2] >= 0.3)
-    # The keyed variant gives the same points, and keys into the frustum box.
+    # Keyed into the frustum box, every point lands inside it.
     box = frustum_box(K_SMALL, min_depth_m=0.3, max_depth_m=8.0, voxel_size_m=0.25)
-    pts2, pix2, key, cellcount = depth_to_keyed_points(depth, K_SMALL, box, voxel_size_m=0.25, min_depth_m=0.3,
-                                                     max_depth_m=8.0, pixel_stride=stride)
-    assert np.array_equal(pts2, pts) and np.array_equal(pix2, pix)
+    key = np.empty(len(pts), np.int64)
+    cellcount = np.empty(int(np.prod(box[3:])), np.int32)
+    kv.count_keys(pts, len(pts), 4.0, box, key, cellcount)
     ijk = np.floor(pts.astype(np.float64) / 0.25).astype(np.int64) - box[:3]
     assert np.all(ijk >= 0) and np.all(ijk < box[3:])
     assert np.array_equal(key, (ijk[:, 0] * box[4] + ijk[:, 1]) * box[5] + ijk[:, 2])
@@ -86,7 +87,10 @@ def test_voxelize_keyed_equals_voxelize():
     rng = np.random.default_rng(3)
     depth = rng.uniform(0.5, 7.0, size=(24, 32)).astype(np.float32)
     box = frustum_box(K_SMALL, min_depth_m=0.3, max_depth_m=8.0, voxel_size_m=0.25)
-    pts, _pix, key, cellcount = depth_to_keyed_points(depth, K_SMALL, box, voxel_size_m=0.25)
+    pts, _pix = depth_to_points(depth, K_SMALL)
+    key = np.empty(len(pts), np.int64)
+    cellcount = np.empty(int(np.prod(box[3:])), np.int32)
+    kv.count_keys(pts, len(pts), 4.0, box, key, cellcount)
     a = voxelize_keyed(pts, key, cellcount, box, voxel_size_m=0.25)
     b = voxelize(pts, voxel_size_m=0.25)
     assert np.array_equal(a.coords, b.coords) and np.array_equal(a.counts, b.counts)

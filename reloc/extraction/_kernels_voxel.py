@@ -3,8 +3,9 @@
 Voxel ``(ix, iy, iz) = floor(p / size)`` (the grid is anchored at the origin, so it does not depend on the data).
 Inside a key box ``[x0, y0, z0, nx, ny, nz]`` a cell has the linear key ``((ix - x0) * ny + (iy - y0)) * nz +
 (iz - z0)``. For a depth frame the box is the viewing frustum (known before any pixel is read), so
-:func:`backproject_keys` keys and counts the points while back-projecting them; for a point cloud it is the bounding
-box of the points (:func:`voxel_box`, :func:`count_keys`). A small box indexes a dense cell table
+:func:`key_image` keys and counts the pixels before any point is stored and :func:`scatter_image` writes the points
+straight to their voxel's place; for a point cloud it is the bounding box of the points (:func:`voxel_box`,
+:func:`count_keys`). A small box indexes a dense cell table
 (:func:`scatter_dense`); a huge one goes through an open-addressing hash table (:func:`voxelize_hash`). Either way
 voxel ids follow the key order, so the result does not depend on the order of the points, and the points are copied
 voxel by voxel into contiguous arrays (a stable counting sort: no comparison sort over the points).
@@ -41,44 +42,6 @@ def backproject(depth, fx, fy, cx, cy, stride, z_min, z_max, pts, pix):
                 pts[m, 1] = yf * z
                 pts[m, 2] = z
                 pix[m] = v * w + u
-                m += 1
-    return m
-
-
-@njit(error_model="numpy")
-def backproject_keys(depth, fx, fy, cx, cy, stride, z_min, z_max, inv_size, box, pts, pix, point_key, cellcount):
-    """:func:`backproject` that also gives each point its dense voxel key (``point_key``, int64) and counts points
-    per cell in ``cellcount`` (``nx*ny*nz`` int32, zeroed here). ``box`` must contain every valid point's cell (for
-    a frame: the viewing frustum between ``z_min`` and ``z_max``, see ``frustum_box``); keys are clamped to it."""
-    ncell = box[3] * box[4] * box[5]
-    for c in range(ncell):
-        cellcount[c] = 0
-    h, w = depth.shape
-    m = 0
-    # Coordinates relative to the box corner are >= 0 inside the box, where int() is floor(). The frustum box has
-    # a one-cell margin, so a valid pixel cannot leave it; the key check only guards the memory.
-    bx = float(box[0])
-    by = float(box[1])
-    bz = float(box[2])
-    nyz = box[4] * box[5]
-    nz = box[5]
-    inv_fx = 1.0 / fx
-    for v in range(0, h, stride):
-        yf = (v - cy) / fy
-        for u in range(0, w, stride):
-            z = depth[v, u]
-            if z > 0.0 and z >= z_min and z <= z_max:
-                px = np.float32((u - cx) * inv_fx * z)
-                py = np.float32(yf * z)
-                pts[m, 0] = px
-                pts[m, 1] = py
-                pts[m, 2] = z
-                pix[m] = v * w + u
-                k = int(px * inv_size - bx) * nyz + int(py * inv_size - by) * nz + int(z * inv_size - bz)
-                if k < 0 or k >= ncell:
-                    k = 0
-                point_key[m] = k
-                cellcount[k] += 1
                 m += 1
     return m
 
@@ -162,7 +125,8 @@ def key_image(depth, fx, fy, cx, cy, stride, z_min, z_max, inv_size, box, pixel_
     (H, W) float32 into ``pixel_key`` (ceil(H/stride) * ceil(W/stride),) int32, -1 where the depth is invalid (as
     :func:`backproject`), and the points per cell into ``cellcount`` (``nx*ny*nz`` int32, zeroed here). No point
     is stored: :func:`scatter_image` computes them again, straight into their voxel's place. Returns the number
-    of valid pixels. Keys as :func:`backproject_keys` (clamped to the box, which must hold every valid point)."""
+    of valid pixels. ``box`` must contain every valid point's cell (the viewing frustum between ``z_min`` and
+``z_max``, see ``frustum_box``, with a one-cell margin); keys are clamped to it, which only guards the memory."""
     ncell = box[3] * box[4] * box[5]
     for c in range(ncell):
         cellcount[c] = 0
@@ -247,7 +211,7 @@ def count_keys(pts, m, inv_size, box, point_key, cellcount):
 def scatter_dense(pts, m, point_key, cellmap, box, voxel_key, voxel_start, sorted_pts, sorted_src):
     """Counting sort of ``pts[:m]`` by dense key. Returns the number of voxels ``V``.
 
-    ``cellmap`` holds the points per cell on entry (from :func:`count_keys` or :func:`backproject_keys`) and the
+    ``cellmap`` holds the points per cell on entry (from :func:`count_keys`) and the
     voxel id of each cell (-1 for empty) on return. Outputs: ``voxel_key[:V]`` increasing, ``voxel_start[:V + 1]``
     offsets into ``sorted_pts`` / ``sorted_src`` (the points and their index in ``pts``, voxel by voxel, in input
     order inside a voxel).
@@ -461,7 +425,6 @@ def _warmup() -> None:
     b = np.array([box[0], box[1], box[2], box[3] - box[0] + 1, box[4] - box[1] + 1, box[5] - box[2] + 1], np.int64)
     cellmap = np.empty(int(b[3] * b[4] * b[5]), np.int32)
     pkey = np.empty(m, np.int64)
-    backproject_keys(depth, 5.0, 5.0, 2.0, 1.5, 1, 0.1, 10.0, 4.0, b, pts, pix, pkey, cellmap)
     pkey32 = np.empty(20, np.int32)
     key_image(depth, 5.0, 5.0, 2.0, 1.5, 1, 0.1, 10.0, 4.0, b, pkey32, cellmap)
     scatter_image(depth, 5.0, 5.0, 2.0, 1.5, 1, pkey32, cellmap, b, np.empty(m, np.int64), np.empty(m + 1, np.int64),

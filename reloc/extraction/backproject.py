@@ -8,7 +8,7 @@ from reloc.camera import Intrinsics
 from reloc.extraction import _kernels_voxel as kv
 from reloc.extraction._workspace import Workspace, fresh
 
-__all__ = ["depth_to_points", "depth_to_keyed_points", "depth_to_key_image"]
+__all__ = ["depth_to_points", "depth_to_key_image"]
 
 
 def depth_to_points(
@@ -50,42 +50,6 @@ def depth_to_points(
     m = kv.backproject(depth, float(intrinsics.fx), float(intrinsics.fy), float(intrinsics.cx),
                        float(intrinsics.cy), int(pixel_stride), float(min_depth_m), float(max_depth_m), pts, pix)
     return pts[:m], pix[:m]
-
-
-def depth_to_keyed_points(
-    depth_m: np.ndarray,
-    intrinsics: Intrinsics,
-    box: np.ndarray,
-    *,
-    voxel_size_m: float,
-    min_depth_m: float = 0.3,
-    max_depth_m: float = 8.0,
-    pixel_stride: int = 1,
-    workspace: Workspace | None = None,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """:func:`depth_to_points` that also keys each point to its voxel in the dense ``box`` (from
-    ``voxelize.frustum_box``) and counts points per cell, in the same pass.
-
-    Returns ``(points, pixels, point_key (M,) int64, cellcount (nx*ny*nz,) int32)``, ready for
-    ``voxelize.voxelize_keyed``.
-    """
-    depth = np.asarray(depth_m)
-    if depth.ndim != 2 or depth.shape != intrinsics.shape:
-        raise ValueError(f"depth_m: expected shape {intrinsics.shape} (from the intrinsics), got {depth.shape}")
-    depth = np.ascontiguousarray(depth, dtype=np.float32)
-    if not isinstance(pixel_stride, (int, np.integer)) or pixel_stride < 1:
-        raise ValueError(f"pixel_stride: expected an integer >= 1, got {pixel_stride!r}")
-    h, w = depth.shape
-    cap = ((h + pixel_stride - 1) // pixel_stride) * ((w + pixel_stride - 1) // pixel_stride)
-    ws = fresh(workspace)
-    pts = ws.get("bp_points", (cap, 3), np.float32)
-    pix = ws.get("bp_pixels", cap, np.int32)
-    key = ws.get("vx_point_key", cap, np.int64)
-    cellcount = ws.get("vx_cellmap", int(box[3] * box[4] * box[5]), np.int32)
-    m = kv.backproject_keys(depth, float(intrinsics.fx), float(intrinsics.fy), float(intrinsics.cx),
-                            float(intrinsics.cy), int(pixel_stride), float(min_depth_m), float(max_depth_m),
-                            1.0 / float(voxel_size_m), box, pts, pix, key, cellcount)
-    return pts[:m], pix[:m], key[:m], cellcount
 
 
 def depth_to_key_image(

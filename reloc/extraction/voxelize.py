@@ -97,7 +97,7 @@ def _grid(ws, m, nv, box, dense, cellmap, tkeys, tvals, voxel_size_m, source_is_
 def voxelize_keyed(points: np.ndarray, point_key: np.ndarray, cellcount: np.ndarray, box: np.ndarray, *,
                    voxel_size_m: float, workspace: Workspace | None = None) -> VoxelGrid:
     """The counting sort of :func:`voxelize` for points whose dense keys and per-cell counts are already known
-    (from ``backproject_keys``, which computes them while back-projecting). ``cellcount`` becomes the cell map."""
+    (from ``count_keys``). ``cellcount`` becomes the cell map."""
     ws = fresh(workspace)
     m = points.shape[0]
     args = (ws.get("vx_keys", max(m, 1), np.int64), ws.get("vx_start", m + 1, np.int64),
