@@ -148,6 +148,7 @@ class _Hypotheses:
         self.n_matched = np.zeros(0, np.int32)
         self.explained = np.zeros(0)
         self.unknown = np.zeros(0)
+        self.refined: np.ndarray | None = None  # per hypothesis, set for the refined modes of the decision
 
     def add(self, R, t, cand, v: Verification) -> None:
         keep = v.passed
@@ -365,10 +366,11 @@ class Relocalizer:
         leaders = leaders[: p.decision_modes]  # in order of quality: the modes that can still matter
         R = hyps.R[leaders].copy()
         t = hyps.t[leaders].copy()
+        refined = np.zeros(len(leaders), dtype=bool)
         for k, a in enumerate(leaders):
             T = self.refine(used, hyps.match[a], hyps.proj[a])
             if T is not None:
-                R[k], t[k] = T[:3, :3], T[:3, 3]
+                R[k], t[k], refined[k] = T[:3, :3], T[:3, 3], True
         cand = hyps.cand[leaders]
         # Whether a mode competes and may win is judged at the final tolerances, as the winner will be; the
         # evidence it carries (matches, overlaps, conflicts) at the sharper decision offset.
@@ -378,6 +380,7 @@ class Relocalizer:
         v = replace(sharp, n_matched=v.n_matched, explained=v.explained, unknown=v.unknown, passed=v.passed)
         out = _Hypotheses(len(used))
         out.add(R, t, cand, v)
+        out.refined = refined[v.passed]  # whose pose is a least-squares pose (not the raw triplet's)
         return out
 
     def _judge(self, hyps, used: PlaneSet, vs_ptr, vs_pts, min_matched: int, timings: dict):
@@ -509,7 +512,7 @@ class Relocalizer:
             v = self.verify(used, vs_ptr, vs_pts, T[None, :3, :3], T[None, :3, 3], hyps.cand[b: b + 1],
                             require_triplet=False, tight=True)
             match_row, proj_row, explained = v.match[0], v.proj[0], float(v.explained[0])
-            refined = bool(v.passed[0])
+            refined = bool(v.passed[0] and hyps.refined[b])
         for _ in range(p.refine_iterations):
             T_new = self.refine(used, match_row, proj_row)
             if T_new is None:
