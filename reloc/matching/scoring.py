@@ -115,7 +115,8 @@ def decide(
     ``state`` (H, S) (see :class:`reloc.matching.relocalizer.Verification`): planes conflicting with the map count
     against a hypothesis (:func:`frequency_weights`). Which hypotheses compete was settled by verification (a pose
     that may be the truth, given what the map does not know, competes); only a pose that itself explains
-    ``min_explained_fraction`` can win.
+    ``min_explained_fraction`` can win. ``free_frac`` (H, S): the fraction of each unmatched plane's samples in the
+    map's known free space, which shrinks the credit an optimistic rival gets for that plane.
 
     ``timings_ms``: when given, the milliseconds of the frequency weights (``"weights"``, Eq. 12-13) and of the kernel
     density (``"density"``, Eq. 14) are added to it.
