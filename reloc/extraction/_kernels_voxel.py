@@ -126,7 +126,7 @@ def key_image(depth, fx, fy, cx, cy, stride, z_min, z_max, inv_size, box, pixel_
     :func:`backproject`), and the points per cell into ``cellcount`` (``nx*ny*nz`` int32, zeroed here). No point
     is stored: :func:`scatter_image` computes them again, straight into their voxel's place. Returns the number
     of valid pixels. ``box`` must contain every valid point's cell (the viewing frustum between ``z_min`` and
-``z_max``, see ``frustum_box``, with a one-cell margin); keys are clamped to it, which only guards the memory."""
+    ``z_max``, see ``frustum_box``, with a one-cell margin); keys are clamped to it, which only guards the memory."""
     ncell = box[3] * box[4] * box[5]
     for c in range(ncell):
         cellcount[c] = 0
@@ -139,13 +139,10 @@ def key_image(depth, fx, fy, cx, cy, stride, z_min, z_max, inv_size, box, pixel_
 
 
 @njit(error_model="numpy")
-def scatter_image(depth, fx, fy, cx, cy, stride, pixel_key, cellmap, box, voxel_key, voxel_start, sorted_pts,
-                  sorted_src):
-    """Second pass of the image-order voxelization: every valid pixel's point (as :func:`backproject`) written
-    straight to its voxel's place. ``cellmap`` holds the points per cell on entry (from :func:`key_image`) and the
-    voxel id of each cell on return; outputs as :func:`scatter_dense`, except that ``sorted_src`` holds each
-    point's flat pixel index ``v * W + u`` (points of a voxel in raster order). Returns the number of voxels."""
-    ncell = box[3] * box[4] * box[5]
+def _number_voxels(cellmap, ncell, voxel_key, voxel_start):
+    """Occupied cells in key order become voxels: ``cellmap`` (points per cell on entry) holds each cell's voxel id
+    on return (``EMPTY`` for none), ``voxel_key[:V]`` the cells, ``voxel_start[:V + 1]`` the offsets of their
+    points. Returns ``V``."""
     nv = 0
     run = 0
     for c in range(ncell):
@@ -159,6 +156,17 @@ def scatter_image(depth, fx, fy, cx, cy, stride, pixel_key, cellmap, box, voxel_
         else:
             cellmap[c] = EMPTY
     voxel_start[nv] = run
+    return nv
+
+
+@njit(error_model="numpy")
+def scatter_image(depth, fx, fy, cx, cy, stride, pixel_key, cellmap, box, voxel_key, voxel_start, sorted_pts,
+                  sorted_src):
+    """Second pass of the image-order voxelization: every valid pixel's point (as :func:`backproject`) written
+    straight to its voxel's place. ``cellmap`` holds the points per cell on entry (from :func:`key_image`) and the
+    voxel id of each cell on return; outputs as :func:`scatter_dense`, except that ``sorted_src`` holds each
+    point's flat pixel index ``v * W + u`` (points of a voxel in raster order). Returns the number of voxels."""
+    nv = _number_voxels(cellmap, box[3] * box[4] * box[5], voxel_key, voxel_start)
     cursor = np.empty(nv, np.int64)
     for v in range(nv):
         cursor[v] = voxel_start[v]
@@ -216,20 +224,7 @@ def scatter_dense(pts, m, point_key, cellmap, box, voxel_key, voxel_start, sorte
     offsets into ``sorted_pts`` / ``sorted_src`` (the points and their index in ``pts``, voxel by voxel, in input
     order inside a voxel).
     """
-    ncell = box[3] * box[4] * box[5]
-    nv = 0
-    run = 0
-    for c in range(ncell):
-        cnt = cellmap[c]
-        if cnt > 0:
-            voxel_key[nv] = c
-            voxel_start[nv] = run
-            run += cnt
-            cellmap[c] = nv
-            nv += 1
-        else:
-            cellmap[c] = EMPTY
-    voxel_start[nv] = run
+    nv = _number_voxels(cellmap, box[3] * box[4] * box[5], voxel_key, voxel_start)
     cursor = np.empty(nv, np.int64)
     for v in range(nv):
         cursor[v] = voxel_start[v]
