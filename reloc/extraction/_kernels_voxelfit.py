@@ -170,7 +170,11 @@ def voxel_weighted_refit(sorted_pts, point_bits, voxel_start, nv, counts, sums, 
     qz = np.empty(cap)
     base = np.empty(cap)
     gz = np.empty(cap)
-    pick = np.empty(cap + 1, np.int64)
+    # Room for every point of the largest voxel: the subsample loop below runs to the voxel's end without a test.
+    n_pick = cap + 1
+    for v in range(nv):
+        n_pick = max(n_pick, voxel_start[v + 1] - voxel_start[v] + 1)
+    pick = np.empty(n_pick, np.int32)
     use_robust = irls_iterations > 0
     n_pass = max(irls_iterations, 1)
     for v in range(nv):
@@ -196,14 +200,13 @@ def voxel_weighted_refit(sorted_pts, point_bits, voxel_start, nv, counts, sums, 
         mloc = 0
         r2max = 0.0
         if step > 1:
-            # The subsample's indices without a branch (one on the hash mispredicts about once in k points), then
-            # only its points are read.
+            # The subsample's indices without a branch (one on the hash mispredicts about once in k points, and
+            # one leaving the loop at ``cap`` costs a compare per point), then only its first ``cap`` points are read.
             n_keep = 0
             for j in range(a, b):
                 pick[n_keep] = j
                 n_keep += 1 if _keep(point_bits, j, step) else 0
-                if n_keep == cap:
-                    break
+            n_keep = min(n_keep, cap)
         else:
             n_keep = min(b - a, cap)
             for i in range(n_keep):
