@@ -276,6 +276,12 @@ class EvaluationConfig(_Section):
         description="A pose must explain this fraction of the submap, each plane weighing sqrt(area): unexplained "
         "large planes and furniture count against it.",
     )
+    min_explained_known_fraction: float = Field(
+        0.7, ge=0, le=1,
+        description="A pose explaining at least this fraction may also win when the rest of its submap lands only where "
+        "the map knows nothing (no plane in conflict with a map surface) and makes up min_explained_fraction: a place "
+        "the mapping run saw in part. 0 turns this off.",
+    )
     refine_iterations: int = Field(2, ge=0, le=10, description="Least-squares refinements of the winning pose.")
     refine_max_angle_deg: float = Field(
         2.0, gt=0, description="Refinement drops matched pairs whose normals disagree by more than this..."
@@ -377,6 +383,17 @@ class EvaluationConfig(_Section):
     )
     distinct_translation_m: float = Field(0.25, gt=0, description="Modes farther apart than this are different poses...")
     distinct_rotation_deg: float = Field(5.0, gt=0, description="...or rotated by more than this.")
+
+    @model_validator(mode="after")
+    def _check(self) -> "EvaluationConfig":
+        errors = [
+            f"{name}: must be <= min_explained_fraction ({self.min_explained_fraction}), got {getattr(self, name)}"
+            for name in ("min_explained_known_fraction", "min_competitor_fraction")
+            if getattr(self, name) > self.min_explained_fraction
+        ]
+        if errors:
+            raise ValueError("\n".join(errors))
+        return self
 
 
 class LiveConfig(_Section):

@@ -110,6 +110,13 @@ def test_strict_types_do_not_coerce():
     assert config_from_dict({"extraction": {"voxel_size_m": 1}}).extraction.voxel_size_m == 1.0
 
 
+def test_explained_fractions_must_not_exceed_the_acceptance_fraction():
+    with pytest.raises(ConfigError, match="evaluation.*min_explained_known_fraction: must be <= min_explained_fraction"):
+        config_from_dict({"evaluation": {"min_explained_fraction": 0.65}})
+    cfg = config_from_dict({"evaluation": {"min_explained_fraction": 0.65, "min_explained_known_fraction": 0.5}})
+    assert cfg.evaluation.min_explained_known_fraction == 0.5
+
+
 def test_T_base_cam_is_checked():
     with pytest.raises(ConfigError, match="camera.T_base_cam: expected 16 numbers"):
         config_from_dict({"camera": {"T_base_cam": [1, 2, 3]}})

@@ -377,3 +377,51 @@ def test_decision_offsets_follow_the_sensor_noise():
     assert stereo.decision_max_offset_m == pytest.approx(2.3 * 2.4e-3 * 9)
     assert stereo.decision_conflict_m == pytest.approx(3.85 * 2.4e-3 * 9)
     assert stereo.final_max_offset_m == base.final_max_offset_m  # acceptance itself is not loosened
+
+
+def test_a_pose_may_win_with_the_rest_of_its_submap_unknown_to_the_map_but_not_in_conflict():
+    from reloc.matching.scoring import explains_enough
+
+    p = MatchingParams()  # min_explained_fraction 0.85, min_explained_known_fraction 0.7
+    explained = np.array([0.9, 0.75, 0.75, 0.75, 0.65])
+    unknown = np.array([0.0, 0.25, 0.05, 0.25, 0.35])
+    state = np.zeros((5, 4), np.int8)
+    state[3, 2] = 2  # one plane in conflict with a map surface
+    assert explains_enough(explained, unknown, state, p).tolist() == [True, True, False, False, False]
+    from dataclasses import replace
+
+    off = replace(p, min_explained_known_fraction=0.0)
+    assert explains_enough(explained, unknown, state, off).tolist() == [True, False, False, False, False]
+    with pytest.raises(ValueError, match="min_explained_known_fraction"):
+        replace(p, min_explained_known_fraction=0.9)
+
+
+def test_views_of_furniture_the_map_lacks_relocalize_with_the_unknown_credit():
+    # The map lacks the shelf (its five faces); views that see it explain too little of themselves without the
+    # credit for planes unknown to the map, and relocalize with it, at the true pose.
+    from dataclasses import replace
+
+    rects = furnished_room("living")
+    shelf = [r for r in rects if abs(r.center[0] - 5.5) < 0.3 and abs(r.center[1] - 3.5) < 0.9 and r.center[2] > 0.5]
+    assert len(shelf) == 5
+    world = scene_planes([r for r in rects if all(r is not s for s in shelf)])
+    outcome = {}
+    for known in (0.0, 0.7):
+        reloc = Relocalizer(world, replace(MatchingParams(), min_explained_known_fraction=known))
+        rng = np.random.default_rng(5)
+        right, wrong, too_little = set(), 0, 0
+        for k, T in enumerate(views(rng, 30)):
+            sub = view_planes(rects, T, point_noise_m=0.005, normal_noise_deg=0.3, offset_noise_m=0.005, rng=rng)
+            res = reloc.locate(sub)
+            if res.relocalized:
+                e = pose_error(res.T_map_cam, T)
+                if e[0] < 0.05 and e[1] < 1.0:
+                    right.add(k)
+                else:
+                    wrong += 1
+            too_little += "explains" in res.reason or "of the submap" in res.reason
+        outcome[known] = (right, wrong, too_little)
+    assert outcome[0.0][1] == outcome[0.7][1] == 0
+    assert outcome[0.0][0] <= outcome[0.7][0]  # nothing lost
+    assert len(outcome[0.7][0]) >= len(outcome[0.0][0]) + 2  # measured: 16 -> 18 of 30
+    assert outcome[0.7][2] < outcome[0.0][2]

@@ -44,6 +44,7 @@ class MatchingParams:
     min_matched_planes: int = 5
     min_direction_support_m2: float = 0.5
     min_explained_fraction: float = 0.85
+    min_explained_known_fraction: float = 0.7
     min_competitor_fraction: float = 0.6
     min_counted_area_m2: float = 0.3
     free_space: bool = True
@@ -101,6 +102,11 @@ class MatchingParams:
                 f"min_competitor_fraction: expected <= min_explained_fraction ({self.min_explained_fraction}), got "
                 f"{self.min_competitor_fraction}"
             )
+        if self.min_explained_known_fraction > self.min_explained_fraction:
+            problems.append(
+                f"min_explained_known_fraction: expected <= min_explained_fraction ({self.min_explained_fraction}), "
+                f"got {self.min_explained_known_fraction}"
+            )
         if self.min_ambiguity_ratio < 1:
             problems.append(f"min_ambiguity_ratio: expected >= 1, got {self.min_ambiguity_ratio}")
         if self.max_condition_number <= 1:
@@ -142,6 +148,7 @@ class MatchingParams:
             min_matched_planes=e.min_matched_planes,
             min_direction_support_m2=e.min_direction_support_m2,
             min_explained_fraction=e.min_explained_fraction,
+            min_explained_known_fraction=e.min_explained_known_fraction,
             min_competitor_fraction=e.min_competitor_fraction,
             min_counted_area_m2=e.min_counted_area_m2,
             free_space=e.free_space,

@@ -25,7 +25,7 @@ import numpy as np
 from reloc.matching import _kernels as K
 from reloc.matching.index import MapIndex, build_index, horizontal_facing, with_dense_extents
 from reloc.matching.params import MatchingParams
-from reloc.matching.scoring import Decision, decide, ratio
+from reloc.matching.scoring import Decision, decide, explains_enough, ratio
 from reloc.matching.selection import (
     candidate_triplets,
     gap_bounds,
@@ -401,6 +401,7 @@ class Relocalizer:
         part: dict = {}
         decision = decide(hyps.R, hyps.t, hyps.match, hyps.over, hyps.n_matched, hyps.explained, self.params,
                           min_matched=min_matched, state=hyps.state, areas=used.areas, free_frac=hyps.free_frac,
+                          unknown=hyps.unknown,
                           optimistic=len(self.index.free_keys) > 0, timings_ms=part)
         timings["decide.weights"] += part.get("weights", 0.0)
         timings["decide.density"] += part.get("density", 0.0)
@@ -520,7 +521,7 @@ class Relocalizer:
                 break
             v = self.verify(used, vs_ptr, vs_pts, T_new[None, :3, :3], T_new[None, :3, 3], hyps.cand[b: b + 1],
                             require_triplet=False)
-            if not v.passed[0] or v.explained[0] < p.min_explained_fraction or v.n_matched[0] < min_matched:
+            if not v.passed[0] or not explains_enough(v.explained[0], v.unknown[0], v.state[0], p) or v.n_matched[0] < min_matched:
                 why = f"{int(v.n_matched[0])} planes, {v.explained[0]:.2f} of the submap at the refined pose"
                 break
             T, match_row, proj_row, explained = T_new, v.match[0], v.proj[0], float(v.explained[0])
@@ -536,7 +537,7 @@ class Relocalizer:
         v = self.verify(used, vs_ptr, vs_pts, T[None, :3, :3], T[None, :3, 3], hyps.cand[b: b + 1],
                         require_triplet=False, tight=True)
         timings["refine"] = (time.perf_counter() - t0) * 1e3
-        if not v.passed[0] or v.explained[0] < p.min_explained_fraction or v.n_matched[0] < min_matched:
+        if not v.passed[0] or not explains_enough(v.explained[0], v.unknown[0], v.state[0], p) or v.n_matched[0] < min_matched:
             return finish(_rejected(
                 f"pose does not hold at tight tolerances: {int(v.n_matched[0])} planes, {v.explained[0]:.2f} of the "
                 "submap", counts, timings,

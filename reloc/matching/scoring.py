@@ -22,7 +22,7 @@ import numpy as np
 from reloc.matching import _kernels as K
 from reloc.matching.params import MatchingParams
 
-__all__ = ["Decision", "frequency_weights", "pose_density", "decide"]
+__all__ = ["Decision", "frequency_weights", "pose_density", "decide", "explains_enough"]
 
 
 @dataclass(frozen=True)
@@ -41,6 +41,25 @@ def _distinct_from(R: np.ndarray, t: np.ndarray, a: int, params: MatchingParams)
     cos = 0.5 * (np.einsum("hij,ij->h", R, R[a]) - 1.0)
     ang = np.arccos(np.clip(cos, -1.0, 1.0))
     return (dt > params.distinct_translation_m) | (ang > params.distinct_rotation_rad)
+
+
+def explains_enough(explained, unknown, state, params: MatchingParams):
+    """Whether each pose explains enough of the submap to be accepted (bool, shape of ``explained``).
+
+    It explains ``min_explained_fraction``; or, with ``min_explained_known_fraction`` > 0, it explains at least that
+    and its unexplained planes land only where the map knows nothing (no plane in conflict with a map surface:
+    ``state`` never 2) and make up the rest (``explained + unknown >= min_explained_fraction``): a place the
+    mapping run saw in part is not held against the true pose, while its rivals get the same credit
+    (optimistic rivals) and the density margin still decides.
+    """
+    explained = np.asarray(explained)
+    ok = explained >= params.min_explained_fraction
+    if params.min_explained_known_fraction > 0 and unknown is not None and state is not None:
+        st = np.asarray(state)
+        clean = ~np.any(st == 2, axis=-1)
+        ok |= (clean & (explained >= params.min_explained_known_fraction)
+               & (explained + np.asarray(unknown) >= params.min_explained_fraction))
+    return ok
 
 
 def frequency_weights(
@@ -104,19 +123,21 @@ def decide(
     state: np.ndarray | None = None,
     areas: np.ndarray | None = None,
     free_frac: np.ndarray | None = None,
+    unknown: np.ndarray | None = None,
     optimistic: bool = True,
     timings_ms: dict | None = None,
 ) -> Decision:
     """Pick the best pose among verified hypotheses, or reject with a reason.
 
     Every hypothesis competes (it may be the truth); only those matching ``min_matched`` planes (default
-    ``params.min_matched_planes``) and explaining ``params.min_explained_fraction`` may win.
+    ``params.min_matched_planes``) and explaining enough of the submap (:func:`explains_enough`) may win.
 
     ``state`` (H, S) (see :class:`reloc.matching.relocalizer.Verification`): planes conflicting with the map count
     against a hypothesis (:func:`frequency_weights`). Which hypotheses compete was settled by verification (a pose
-    that may be the truth, given what the map does not know, competes); only a pose that itself explains
-    ``min_explained_fraction`` can win. ``free_frac`` (H, S): the fraction of each unmatched plane's samples in the
-    map's known free space, which shrinks the credit an optimistic rival gets for that plane.
+    that may be the truth, given what the map does not know, competes); only a pose that itself explains enough
+    can win. ``unknown`` (H,): the weight of each pose's planes unknown to the map (see :func:`explains_enough`).
+    ``free_frac`` (H, S): the fraction of each unmatched plane's samples in the map's known free space, which shrinks
+    the credit an optimistic rival gets for that plane.
 
     ``timings_ms``: when given, the milliseconds of the frequency weights (``"weights"``, Eq. 12-13) and of the kernel
     density (``"density"``, Eq. 14) are added to it.
@@ -157,13 +178,15 @@ def decide(
         timings_ms["weights"] = timings_ms.get("weights", 0.0) + (t1 - t0) * 1e3
         timings_ms["density"] = timings_ms.get("density", 0.0) + (t2 - t1) * 1e3
     need = params.min_matched_planes if min_matched is None else min_matched
-    eligible = (n_matched >= need) & (explained >= params.min_explained_fraction)
+    eligible = (n_matched >= need) & explains_enough(explained, unknown, state, params)
     if not eligible.any():
         a = int(np.argmax(quality))
         return Decision(
             False,
             f"no pose explains enough: best {int(n_matched[a])} planes, {explained[a]:.2f} of the submap (needs "
-            f"{need} and {params.min_explained_fraction})",
+            f"{need} and {params.min_explained_fraction}"
+            + (f", or {params.min_explained_known_fraction} with the rest unknown to the map)"
+               if params.min_explained_known_fraction > 0 else ")"),
             -1, 0.0, 0.0, n_modes,
         )
     mode_ok = np.bincount(group, weights=eligible.astype(float), minlength=n_modes) > 0
