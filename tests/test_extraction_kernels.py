@@ -247,6 +247,119 @@ def test_pack_regions_matches_numpy(seed):
     assert np.array_equal(pov, ref_pov) and np.array_equal(nvox[:ns], ref_nvox)
 
 
+
+def _random_regions(rng, nr):
+    """Region rows as merging leaves them: planes (unit normal, d > 0), weighted moments of a few points about the
+    origin, counts, sums, effective counts, radius bounds."""
+    rplane = np.zeros((nr, 4))
+    rmom = np.zeros((nr, 4))
+    rscat = np.zeros((nr, 3, 3))
+    for r in range(nr):
+        p = rng.normal([0.0, 0.0, 2.0], 0.4, size=(30, 3))
+        w = rng.uniform(0.5, 2.0, 30)
+        n = rng.normal(size=3)
+        n /= np.linalg.norm(n)
+        rplane[r] = [*n, abs(rng.normal(2.0, 0.5))]
+        rmom[r] = [w.sum(), *(w @ p)]
+        rscat[r] = (p * w[:, None]).T @ p
+    rcount = rng.integers(20, 500, nr).astype(np.int64)
+    rsum = rng.normal(size=(nr, 3)) * rcount[:, None]
+    rneff = rng.integers(0, 500, nr).astype(np.int64)
+    rrad = rng.uniform(0.1, 2.0, nr)
+    return rplane, rmom, rscat, rcount, rsum, rneff, rrad
+
+
+@pytest.mark.parametrize("ray_mode", [True, False])
+def test_pack_planes_matches_numpy(ray_mode):
+    """The surviving regions' rows in plane order with their covariances, against NumPy indexing of the rows and
+    the covariance kernel on them (what the pipeline did before the kernel)."""
+    from reloc.extraction._kernels_linalg import plane_covariances
+
+    rng = np.random.default_rng(4)
+    nr, nv = 30, 200
+    parent = np.arange(nr, dtype=np.int32)
+    for r in range(1, nr):
+        if rng.random() < 0.5:
+            parent[r] = rng.integers(0, r)
+    plane_of_region = np.where(rng.random(nv) < 0.2, -1, rng.integers(0, nr, nv)).astype(np.int32)
+    rows = _random_regions(rng, nr)
+    r2p_ref = np.empty(nr, np.int32)
+    surv = np.empty(nr, np.int64)
+    pov_ref = np.empty(nv, np.int32)
+    nvox_ref = np.empty(nr, np.int64)
+    ns_ref = km.pack_regions(parent, plane_of_region, r2p_ref, surv, pov_ref, nvox_ref)
+    surv = surv[:ns_ref]
+    ref = [x[surv] for x in rows]
+    covs_ref = np.zeros((ns_ref, 4, 4))
+    s0_ref = np.zeros(ns_ref)
+    plane_covariances(ref[0], ref[1], ref[2], ref[5], ray_mode, covs_ref, s0_ref)
+    out = [np.full((nr, 4), np.nan), np.full((nr, 4), np.nan), np.full((nr, 3, 3), np.nan), np.full(nr, -9),
+           np.full((nr, 3), np.nan), np.full(nr, -9), np.full(nr, np.nan)]
+    covs = np.full((nr, 4, 4), np.nan)
+    s0 = np.full(nr, np.nan)
+    r2p = np.full(nr, -9, np.int32)
+    pov = np.full(nv, -9, np.int32)
+    nvox = np.full(nr, -9, np.int64)
+    ns = km.pack_planes(parent, plane_of_region, *rows, ray_mode, r2p, np.empty(nr, np.int64), pov, nvox,
+                        *out, covs, s0)
+    assert ns == ns_ref and 5 < ns < nr - 5
+    assert np.array_equal(r2p, r2p_ref) and np.array_equal(pov, pov_ref) and np.array_equal(nvox[:ns], nvox_ref[:ns])
+    for got, want in zip(out, ref):
+        assert np.array_equal(got[:ns], want)
+    assert np.array_equal(covs[:ns], covs_ref) and np.array_equal(s0[:ns], s0_ref)
+
+
+@pytest.mark.parametrize("ray_mode", [True, False])
+def test_refine_keep_matches_numpy(ray_mode):
+    """The refinement's refit, bevels dropped and statistics taken, against NumPy (solve_planes on copies, then
+    boolean indexing and np.where, as the pipeline did before the kernel)."""
+    from reloc.extraction import _kernels_finalize as kfin
+
+    rng = np.random.default_rng(5)
+    n, nv = 25, 120
+    planes, wmom, wscat, counts, sums, n_eff, rad = _random_regions(rng, n)
+    acc_w = np.where(rng.random(n) < 0.2, 0.0, rng.uniform(1.0, 5.0, n))
+    acc_s = rng.normal(0.0, 0.05, size=(n, 3)) * acc_w[:, None]
+    acc_S = np.zeros((n, 3, 3))
+    for p in range(n):
+        q = rng.normal(0.0, [0.5, 0.5, 0.01], size=(20, 3))
+        acc_S[p] = q.T @ q * acc_w[p] / 20
+    refs = rng.normal([0.0, 0.0, 2.0], 0.5, size=(n, 3))
+    acc_n = rng.integers(0, 10, n).astype(np.int64)
+    acc_amb = np.where(rng.random(n) < 0.25, acc_n + 1, 0).astype(np.int64)
+    acc_sum = rng.normal(size=(n, 3))
+    pov = np.where(rng.random(nv) < 0.2, -1, rng.integers(0, n, nv)).astype(np.int32)
+    # NumPy reference.
+    planes_ref, wmom_ref, wscat_ref = planes.copy(), wmom.copy(), wscat.copy()
+    kfin.solve_planes(acc_w, acc_s, acc_S, refs, ray_mode, planes_ref, wmom_ref, wscat_ref)
+    keep = ~(acc_amb > acc_n)
+    kept = acc_n > 3
+    remap = np.full(n, -1, np.int32)
+    remap[keep] = np.arange(int(keep.sum()))
+    ref = (planes_ref[keep], wmom_ref[keep], wscat_ref[keep], np.where(kept, acc_n, counts)[keep],
+           np.where(kept[:, None], acc_sum, sums)[keep], np.where(kept, acc_n, n_eff)[keep], rad[keep])
+    pov_ref = np.where(pov >= 0, remap[np.maximum(pov, 0)], -1)
+    # Kernel.
+    wmom_in, wscat_in = wmom.copy(), wscat.copy()
+    old_to_kept = np.full(n, -9, np.int32)
+    out = [np.full((n, 4), np.nan), np.full((n, 4), np.nan), np.full((n, 3, 3), np.nan), np.full(n, -9),
+           np.full((n, 3), np.nan), np.full(n, -9), np.full(n, np.nan)]
+    k_pov = np.full(nv, -9, np.int32)
+    planes_in = planes.copy()
+    nk = kfin.refine_keep(acc_w, acc_s, acc_S, refs, ray_mode, planes_in, wmom_in, wscat_in, acc_n, acc_amb, acc_sum,
+                          counts, sums, n_eff, rad, pov, old_to_kept, out[0], out[1], out[2], out[3], out[4], out[5],
+                          out[6], k_pov)
+    assert nk == int(keep.sum()) and 3 < nk < n
+    assert np.array_equal(old_to_kept, remap) and np.array_equal(k_pov, pov_ref)
+    assert np.array_equal(planes_in, planes_ref)  # refit in place
+    assert np.array_equal(wmom_in, wmom) and np.array_equal(wscat_in, wscat)  # inputs untouched
+    for got, want in zip(out, ref):
+        assert np.array_equal(got[:nk], want)
+    table = np.full(n, -9, np.int32)
+    kept_to_final = rng.integers(-1, 5, nk).astype(np.int32)
+    kfin.compose_table(old_to_kept, kept_to_final, table)
+    assert np.array_equal(table, np.where(remap >= 0, kept_to_final[np.maximum(remap, 0)], -1))
+
 def test_fragment_merge_kernel_on_two_coplanar_regions():
     """Two coplanar fragments side by side merge; a parallel one 0.3 m behind does not."""
     rng = np.random.default_rng(9)

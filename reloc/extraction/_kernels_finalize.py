@@ -709,6 +709,53 @@ def solve_planes(acc_w, acc_s, acc_S, refs, ray_mode, planes, wmom, wscat):
 
 
 @njit(error_model="numpy")
+def refine_keep(acc_w, acc_s, acc_S, refs, ray_mode, planes, wmoments, wscatters, acc_n, acc_amb, acc_sum, counts,
+                sums, n_eff, radius_bound, plane_of_voxel, old_to_kept, k_planes, k_wmom, k_wscat, k_counts, k_sums,
+                k_neff, k_radius, k_plane_of_voxel):
+    """The refinement pass's planes kept: every plane with a positive weight refit (:func:`solve_planes`, ``planes``
+    updated in place; the weighted moments ``wmoments`` / ``wscatters`` of the others kept), then the planes that
+    are not a bevel (``acc_amb <= acc_n``) copied in order into the ``k_*`` outputs (>= P rows), those that kept
+    more than 3 points with the pass's ``acc_n`` as count and effective count and ``acc_sum`` as sum, the others
+    with their ``counts``, ``n_eff``, ``sums``; ``radius_bound`` as it was. ``old_to_kept`` (P,) receives each
+    plane's kept index (-1 for a bevel) and ``k_plane_of_voxel`` (V,) the voxels' planes renumbered so (-1 stays
+    -1). Returns the number of planes kept."""
+    n = planes.shape[0]
+    wmom = wmoments.copy()
+    wscat = wscatters.copy()
+    solve_planes(acc_w, acc_s, acc_S, refs, ray_mode, planes, wmom, wscat)
+    nk = 0
+    for p in range(n):
+        if acc_amb[p] > acc_n[p]:
+            old_to_kept[p] = -1
+            continue
+        old_to_kept[p] = nk
+        kept = acc_n[p] > 3
+        for i in range(4):
+            k_planes[nk, i] = planes[p, i]
+            k_wmom[nk, i] = wmom[p, i]
+        for i in range(3):
+            k_sums[nk, i] = acc_sum[p, i] if kept else sums[p, i]
+            for j in range(3):
+                k_wscat[nk, i, j] = wscat[p, i, j]
+        k_counts[nk] = acc_n[p] if kept else counts[p]
+        k_neff[nk] = acc_n[p] if kept else n_eff[p]
+        k_radius[nk] = radius_bound[p]
+        nk += 1
+    for v in range(plane_of_voxel.shape[0]):
+        g = plane_of_voxel[v]
+        k_plane_of_voxel[v] = old_to_kept[g] if g >= 0 else -1
+    return nk
+
+
+@njit(error_model="numpy")
+def compose_table(old_to_kept, kept_to_final, table):
+    """``table[p] = kept_to_final[old_to_kept[p]]`` (-1 where ``old_to_kept`` is -1)."""
+    for p in range(old_to_kept.shape[0]):
+        k = old_to_kept[p]
+        table[p] = kept_to_final[k] if k >= 0 else -1
+
+
+@njit(error_model="numpy")
 def plane_grids(planes, plane_of_voxel, nv, counts, sums, pad, area_cell, sample_cell, tb, area_grid, sample_grid):
     """In-plane grids of every plane, sized from its voxels (no pass over the points).
 
@@ -994,6 +1041,12 @@ def _warmup() -> None:
                           refs, aw, a_s, aS, an, asum, amb, np.zeros((1, 10)), np.empty((SCRATCH_ROWS, m)))
     for ray in (True, False):
         solve_planes(aw, a_s, aS, refs, ray, planes.copy(), np.zeros((1, 4)), np.zeros((1, 3, 3)))
+        refine_keep(aw, a_s, aS, refs, ray, planes.copy(), np.zeros((1, 4)), np.zeros((1, 3, 3)), an, amb, asum,
+                    np.ones(1, np.int64), np.zeros((1, 3)), np.ones(1, np.int64), np.zeros(1),
+                    np.array([0, -1], np.int32), np.empty(1, np.int32), np.empty((1, 4)), np.empty((1, 4)),
+                    np.empty((1, 3, 3)), np.empty(1, np.int64), np.empty((1, 3)), np.empty(1, np.int64), np.empty(1),
+                    np.empty(2, np.int32))
+    compose_table(np.array([0, -1], np.int32), np.array([0], np.int32), np.empty(2, np.int32))
     counts = np.zeros(1, np.int64)
     sums = np.zeros((1, 3))
     scat = np.zeros((1, 3, 3))

@@ -15,7 +15,7 @@ import numpy as np
 
 from reloc._numba import njit, register_warmup
 from reloc.extraction._kernels_fit import point_sigma
-from reloc.extraction._kernels_linalg import plane_from_moments, solve_plane
+from reloc.extraction._kernels_linalg import plane_covariances, plane_from_moments, solve_plane
 from reloc.extraction._kernels_voxel import voxel_lookup
 from reloc.extraction._kernels_voxelfit import PLANAR
 
@@ -313,6 +313,32 @@ def pack_regions(parent, plane_of_region, region_to_plane, survivors, plane_of_v
     return ns
 
 
+@njit(error_model="numpy")
+def pack_planes(parent, plane_of_region, rplane, rmom, rscat, rcount, rsum, rneff, rrad, ray_mode, region_to_plane,
+                survivors, plane_of_voxel, n_voxels, planes, wmom, wscat, counts, sums, n_eff, radius_bound, covs,
+                s0sq):
+    """:func:`pack_regions`, then the surviving regions' rows (``rplane``, ``rmom``, ``rscat``, ``rcount``,
+    ``rsum``, ``rneff``, ``rrad``) copied in plane order into ``planes``, ``wmom``, ``wscat``, ``counts``, ``sums``,
+    ``n_eff``, ``radius_bound`` and each plane's covariance and variance factor (``plane_covariances`` of the
+    mode) into ``covs``, ``s0sq`` (every output (>= R, ...), its first rows written). Returns the number of
+    planes."""
+    ns = pack_regions(parent, plane_of_region, region_to_plane, survivors, plane_of_voxel, n_voxels)
+    for k in range(ns):
+        r = survivors[k]
+        for i in range(4):
+            planes[k, i] = rplane[r, i]
+            wmom[k, i] = rmom[r, i]
+        for i in range(3):
+            sums[k, i] = rsum[r, i]
+            for j in range(3):
+                wscat[k, i, j] = rscat[r, i, j]
+        counts[k] = rcount[r]
+        n_eff[k] = rneff[r]
+        radius_bound[k] = rrad[r]
+    plane_covariances(planes[:ns], wmom[:ns], wscat[:ns], n_eff[:ns], ray_mode, covs[:ns], s0sq[:ns])
+    return ns
+
+
 @register_warmup
 def _warmup() -> None:
     nv = 2
@@ -350,3 +376,8 @@ def _warmup() -> None:
                         2.0, 4.0, 0.01, 1.5, parent, 5)
         pack_regions(parent, region_of, np.empty(nr, np.int32), np.empty(nr, np.int64), np.empty(nv, np.int32),
                      np.empty(nr, np.int64))
+        for ray in (True, False):
+            pack_planes(parent, region_of, rplane, rmom, rscat, rcount, rsum, rneff, rrad, ray, np.empty(nr, np.int32),
+                        np.empty(nr, np.int64), np.empty(nv, np.int32), np.empty(nr, np.int64), np.empty((nr, 4)),
+                        np.empty((nr, 4)), np.empty((nr, 3, 3)), np.empty(nr, np.int64), np.empty((nr, 3)),
+                        np.empty(nr, np.int64), np.empty(nr), np.empty((nr, 4, 4)), np.empty(nr))

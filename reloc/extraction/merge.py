@@ -94,19 +94,21 @@ def _merge_and_pack(plane_of_region, rplane, rmom, rscat, rcount, rsum, rneff, r
     if merge and nr > 1:
         n_merges = km.merge_fragments(nr, rplane, rmom, rscat, rcount, rsum, rneff, rrad, ray, *fragment_args,
                                       parent, 16)
-    # Resolve merge chains to their surviving region, number the survivors, and the voxels' planes.
+    # Resolve merge chains to their surviving region, number the survivors, the voxels' planes, and copy the
+    # survivors' rows with their covariances (one kernel: the NumPy indexing it replaces cost more than it).
     region_to_plane = np.empty(nr, np.int32)
-    survivors = np.empty(nr, np.int64)
     plane_of_voxel = np.empty(plane_of_region.shape[0], np.int32)
-    n_voxels = np.empty(nr, np.int64)
-    ns = km.pack_regions(parent, plane_of_region, region_to_plane, survivors, plane_of_voxel, n_voxels)
-    survivors = survivors[:ns]
-    n_voxels = n_voxels[:ns]
-    covs, s0 = plane_covariances(rplane[survivors], rmom[survivors], rscat[survivors], rneff[survivors], ray_mode=ray)
+    planes, wmom, sums = np.empty((nr, 4)), np.empty((nr, 4)), np.empty((nr, 3))
+    wscat, covs = np.empty((nr, 3, 3)), np.empty((nr, 4, 4))
+    counts, n_eff, n_voxels = np.empty(nr, np.int64), np.empty(nr, np.int64), np.empty(nr, np.int64)
+    radius_bound, s0 = np.empty(nr), np.empty(nr)
+    ns = km.pack_planes(parent, plane_of_region, rplane, rmom, rscat, rcount, rsum, rneff, rrad, ray, region_to_plane,
+                        np.empty(nr, np.int64), plane_of_voxel, n_voxels, planes, wmom, wscat, counts, sums, n_eff,
+                        radius_bound, covs, s0)
     return MergedPlanes(
-        plane_of_voxel=plane_of_voxel, planes=rplane[survivors], wmoments=rmom[survivors],
-        wscatters=rscat[survivors], n_eff=rneff[survivors], counts=rcount[survivors], sums=rsum[survivors],
-        radius_bound=rrad[survivors], n_voxels=n_voxels, covariances=covs, variance_factors=s0,
+        plane_of_voxel=plane_of_voxel, planes=planes[:ns], wmoments=wmom[:ns], wscatters=wscat[:ns],
+        n_eff=n_eff[:ns], counts=counts[:ns], sums=sums[:ns], radius_bound=radius_bound[:ns],
+        n_voxels=n_voxels[:ns], covariances=covs[:ns], variance_factors=s0[:ns],
         n_fragment_merges=int(n_merges + n_merges_before),
     ), region_to_plane
 
@@ -227,39 +229,31 @@ def refine_merged_planes(
         bool(refine_boundary), point_plane, True, bool(noise_weights), refs, acc_w, acc_s, acc_S, acc_n, acc_sum,
         acc_amb, sup, ws.get("rf_scratch", (kfin.SCRATCH_ROWS, max(int(grid.counts.max()), 1)), np.float64),
     )
-    wmom = merged.wmoments.copy()
-    wscat = merged.wscatters.copy()
-    kfin.solve_planes(acc_w, acc_s, acc_S, refs, ray, planes, wmom, wscat)
-    # A plane whose points are mostly at a corner of two other planes is a bevel across that corner made by voxels
-    # holding both surfaces: drop it, its points go to the planes around it.
-    bevel = acc_amb > acc_n
-    keep = ~bevel
-    # Planes that kept points take their refined statistics; the others keep the merged ones.
-    kept = acc_n > 3
-    counts = np.where(kept, acc_n, merged.counts)
-    sums = np.where(kept[:, None], acc_sum, merged.sums)
-    n_eff = np.where(kept, acc_n, merged.n_eff)
-    plane_of_voxel = merged.plane_of_voxel
-    if bevel.any():
-        remap = np.full(n, -1, np.int32)
-        remap[keep] = np.arange(int(keep.sum()), dtype=np.int32)
-        plane_of_voxel = np.where(plane_of_voxel >= 0, remap[np.maximum(plane_of_voxel, 0)], -1).astype(np.int32)
-        planes, wmom, wscat, counts, sums, n_eff = (x[keep] for x in (planes, wmom, wscat, counts, sums, n_eff))
+    # Refit, drop the bevels and take the pass's statistics (one kernel). A plane whose points are mostly at a
+    # corner of two other planes is a bevel across that corner made by voxels holding both surfaces: dropped, its
+    # points go to the planes around it. Planes that kept points take their refined statistics; the others keep
+    # the merged ones.
+    old_to_kept = np.empty(n, np.int32)
+    k_planes, k_wmom, k_sums = np.empty((n, 4)), np.empty((n, 4)), np.empty((n, 3))
+    k_wscat = np.empty((n, 3, 3))
+    k_counts, k_neff, k_radius = np.empty(n, np.int64), np.empty(n, np.int64), np.empty(n)
+    plane_of_voxel = np.empty(merged.plane_of_voxel.shape[0], np.int32)
+    nk = kfin.refine_keep(acc_w, acc_s, acc_S, refs, ray, planes, merged.wmoments, merged.wscatters, acc_n, acc_amb,
+                          acc_sum, merged.counts, merged.sums, merged.n_eff, merged.radius_bound,
+                          merged.plane_of_voxel, old_to_kept, k_planes, k_wmom, k_wscat, k_counts, k_sums, k_neff,
+                          k_radius, plane_of_voxel)
     fragment_args = _fragment_args(noise_model, noise_coeff, undergrown_max_angle_rad, grow_angle_noise_sigmas,
                                    undergrown_max_depth_angle_rad, undergrown_max_offset_m, grow_offset_sigmas,
                                    max_thickness_sigmas, max_thickness_floor_m, undergrown_radius_scale)
-    out, kept_to_final = _merge_and_pack(plane_of_voxel, planes, wmom, wscat, counts.astype(np.int64), sums,
-                          n_eff.astype(np.int64), merged.radius_bound[keep].copy(), merge=merge, ray=ray,
-                          fragment_args=fragment_args, n_merges_before=merged.n_fragment_merges)
+    out, kept_to_final = _merge_and_pack(plane_of_voxel, k_planes[:nk], k_wmom[:nk], k_wscat[:nk], k_counts[:nk],
+                                         k_sums[:nk], k_neff[:nk], k_radius[:nk], merge=merge, ray=ray,
+                                         fragment_args=fragment_args, n_merges_before=merged.n_fragment_merges)
     if point_step != 1:
         return out
     # The pass's planes to the output's (the plane set applies it to the points): removed bevels lose their
     # points, merged fragments go to their survivor.
-    old_to_kept = np.full(n, -1, np.int32)
-    old_to_kept[keep] = np.arange(int(keep.sum()), dtype=np.int32)
-    # (np.where evaluates both branches: with no plane kept there is nothing to index.)
-    table = (np.where(old_to_kept >= 0, kept_to_final[np.maximum(old_to_kept, 0)], -1) if len(kept_to_final)
-             else np.full(n, -1)).astype(np.int32)
+    table = np.empty(n, np.int32)
+    kfin.compose_table(old_to_kept, kept_to_final, table)
     n_out = len(out)
     support = (np.zeros(n_out, np.int64), np.zeros((n_out, 3)), np.zeros((n_out, 3, 3)))
     kfin.support_moments(sup, refs, table, n_out, *support)
