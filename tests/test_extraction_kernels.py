@@ -687,3 +687,57 @@ def test_multi_candidate_voxel_matches_numpy(ray_mode, step):
         assert np.allclose(acc["sup"], ref["sup"], rtol=1e-9, atol=1e-9)
     else:
         assert np.all(point_plane == -7)  # the cheap pass assigns nothing
+
+
+def test_plane_order_keep_and_gather_match_numpy():
+    """The plane set's bookkeeping kernels against the NumPy they replace: cell offsets, centroids, planes ordered
+    by support (stable), the area filter with the labels' renumbering, and the kept rows."""
+    from reloc.extraction import _kernels_finalize as kfin
+
+    rng = np.random.default_rng(9)
+    n = 40
+    counts = rng.integers(0, 400, n).astype(np.int64)
+    counts[[3, 7, 11]] = 250  # ties keep their index order
+    counts[5] = 0
+    sums = rng.normal(size=(n, 3)) * np.maximum(counts, 1)[:, None]
+    area_grid = rng.integers(1, 9, size=(n, 4)).astype(np.int64)
+    sample_grid = rng.integers(1, 9, size=(n, 4)).astype(np.int64)
+    min_points = 200
+    area_off_ref = np.concatenate([[0], np.cumsum(area_grid[:, 2] * area_grid[:, 3])])
+    sample_off_ref = np.concatenate([[0], np.cumsum(sample_grid[:, 2] * sample_grid[:, 3])])
+    centroids_ref = sums / np.maximum(counts, 1)[:, None]
+    order_ref = np.flatnonzero(counts >= min_points)
+    order_ref = order_ref[np.argsort(-counts[order_ref], kind="stable")]
+    remap_ref = np.full(n, -1, np.int32)
+    remap_ref[order_ref] = np.arange(len(order_ref))
+    area_off = np.full(n + 1, -9, np.int64)
+    sample_off = np.full(n + 1, -9, np.int64)
+    centroids = np.full((n, 3), np.nan)
+    order = np.full(n, -9, np.int64)
+    remap = np.full(n, -9, np.int32)
+    k = kfin.plane_order(counts, sums, min_points, area_grid, sample_grid, centroids, area_off, sample_off, order,
+                         remap)
+    assert k == len(order_ref) and 5 < k < n - 5
+    assert np.array_equal(area_off, area_off_ref) and np.array_equal(sample_off, sample_off_ref)
+    assert np.array_equal(centroids, centroids_ref)
+    assert np.array_equal(order[:k], order_ref) and np.array_equal(remap, remap_ref)
+    areas = rng.uniform(0.0, 0.1, n)
+    keep_ref = order_ref[areas[order_ref] >= 0.04]
+    final_ref = np.full(len(order_ref), -1, np.int32)
+    final_ref[remap_ref[keep_ref]] = np.arange(len(keep_ref))
+    keep = np.full(k, -9, np.int64)
+    final = np.full(k, -9, np.int32)
+    nk = kfin.keep_planes(order, k, areas, 0.04, remap, keep, final)
+    assert 0 < nk < k
+    assert np.array_equal(keep[:nk], keep_ref) and np.array_equal(final, final_ref)
+    planes = rng.normal(size=(n, 4))
+    radii = rng.uniform(size=n)
+    covs = rng.normal(size=(n, 4, 4))
+    scat = rng.normal(size=(n, 3, 3))
+    out = (np.empty((nk, 3)), np.empty(nk), np.empty((nk, 3)), np.empty(nk, np.int64), np.empty(nk), np.empty(nk),
+           np.empty((nk, 4, 4)), np.empty((nk, 3)), np.empty((nk, 3, 3)))
+    kfin.gather_planes(keep, nk, planes, centroids, counts, radii, areas, covs, sums, scat, *out)
+    want = (planes[keep_ref, :3], planes[keep_ref, 3], centroids_ref[keep_ref], counts[keep_ref], radii[keep_ref],
+            areas[keep_ref], covs[keep_ref], sums[keep_ref], scat[keep_ref])
+    for got, ref in zip(out, want):
+        assert np.array_equal(got, ref)

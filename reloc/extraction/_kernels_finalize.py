@@ -813,6 +813,76 @@ def plane_grids(planes, plane_of_voxel, nv, counts, sums, pad, area_cell, sample
 
 
 @njit(error_model="numpy")
+def plane_order(counts, sums, min_points, area_grid, sample_grid, centroids, area_off, sample_off, order, remap):
+    """Before :func:`plane_extent`: the offsets of each plane's cells (``area_off`` / ``sample_off`` (P + 1,), from
+    the grids' sizes), the centroids ``sums / max(counts, 1)``, and the planes with at least ``min_points`` points
+    in ``order`` (most points first, ties by index: a stable sort) with ``remap`` (P,) their rank (-1 for the
+    others). Returns how many are in ``order``."""
+    n = counts.shape[0]
+    area_off[0] = 0
+    sample_off[0] = 0
+    for p in range(n):
+        area_off[p + 1] = area_off[p] + area_grid[p, 2] * area_grid[p, 3]
+        sample_off[p + 1] = sample_off[p] + sample_grid[p, 2] * sample_grid[p, 3]
+        c = max(counts[p], 1)
+        for i in range(3):
+            centroids[p, i] = sums[p, i] / c
+        remap[p] = -1
+    k = 0
+    for p in range(n):
+        if counts[p] >= min_points:
+            j = k
+            while j > 0 and counts[order[j - 1]] < counts[p]:
+                order[j] = order[j - 1]
+                j -= 1
+            order[j] = p
+            k += 1
+    for i in range(k):
+        remap[order[i]] = i
+    return k
+
+
+@njit(error_model="numpy")
+def keep_planes(order, n_order, areas, min_area, remap, keep, final):
+    """After :func:`plane_extent`: the planes of ``order[:n_order]`` with an area of at least ``min_area``, in that
+    order, into ``keep``; ``final`` (n_order,) maps each rank of ``remap`` to its index among them (-1: dropped).
+    Returns how many are kept."""
+    nk = 0
+    for i in range(n_order):
+        final[i] = -1
+    for i in range(n_order):
+        p = order[i]
+        if areas[p] >= min_area:
+            keep[nk] = p
+            final[remap[p]] = nk
+            nk += 1
+    return nk
+
+
+@njit(error_model="numpy")
+def gather_planes(keep, nk, planes, centroids, counts, radii, areas, covariances, sums, scatters, normals_out,
+                  offsets_out, centroids_out, counts_out, radii_out, areas_out, covariances_out, sums_out,
+                  scatters_out):
+    """The rows ``keep[:nk]`` of the plane statistics copied into the ``*_out`` arrays (``planes`` split into
+    normals and offsets)."""
+    for i in range(nk):
+        p = keep[i]
+        for k in range(3):
+            normals_out[i, k] = planes[p, k]
+            centroids_out[i, k] = centroids[p, k]
+            sums_out[i, k] = sums[p, k]
+            for j in range(3):
+                scatters_out[i, k, j] = scatters[p, k, j]
+        offsets_out[i] = planes[p, 3]
+        counts_out[i] = counts[p]
+        radii_out[i] = radii[p]
+        areas_out[i] = areas[p]
+        for k in range(4):
+            for j in range(4):
+                covariances_out[i, k, j] = covariances[p, k, j]
+
+
+@njit(error_model="numpy")
 def plane_stats(sorted_pts, point_plane, m, counts, sums, scatters):
     """Count, sum and scatter (about the origin) of each plane's supporting points; outputs zeroed here."""
     for p in range(counts.shape[0]):
@@ -1070,6 +1140,14 @@ def _warmup() -> None:
             plane_extent(pts, pp, np.array([0], np.int32), m, cent, tb, 0.1, ag, aoff, occ, 0.1, sg, soff, acc, np.zeros(1), areas, True,
                          np.arange(m).astype(np.int32) % 20, src_is_pixel, np.arange(20).astype(np.int32),
                          np.array([0], np.int32), 5, 4, stride, labels)
+    order = np.empty(1, np.int64)
+    remap = np.empty(1, np.int32)
+    n_order = plane_order(counts, sums, 1, ag, sg, cent, aoff.copy(), soff.copy(), order, remap)
+    keep = np.empty(1, np.int64)
+    nk = keep_planes(order, n_order, areas, 0.0, remap, keep, np.empty(1, np.int32))
+    gather_planes(keep, nk, planes, cent, counts, np.zeros(1), areas, np.zeros((1, 4, 4)), sums, scat,
+                  np.empty((1, 3)), np.empty(1), np.empty((1, 3)), np.empty(1, np.int64), np.empty(1), np.empty(1),
+                  np.empty((1, 4, 4)), np.empty((1, 3)), np.empty((1, 3, 3)))
     sp = np.zeros((max(ns, 1), 3), np.float32)
     ptr = np.zeros(2, np.int64)
     collect_samples(acc, soff, np.array([0], np.int64), sp, ptr)

@@ -98,40 +98,41 @@ def assemble_plane_set(
             f"{n_area} area and {n_sample} sample cells (at most {MAX_DENSE_AREA_CELLS} and {MAX_DENSE_SAMPLE_CELLS}); "
             "use larger cells for planes this large"
         )
-    area_off = np.concatenate([[0], np.cumsum(area_grid[:, 2] * area_grid[:, 3])]).astype(np.int64)
-    sample_off = np.concatenate([[0], np.cumsum(sample_grid[:, 2] * sample_grid[:, 3])]).astype(np.int64)
+    area_off = np.empty(n_all + 1, np.int64)
+    sample_off = np.empty(n_all + 1, np.int64)
+    centroids = np.empty((n_all, 3))
+    # Keep the planes that are large enough (the area comes from the pass below), the most supported first.
+    order = np.empty(n_all, np.int64)
+    remap = np.empty(n_all, np.int32)
+    n_order = kf.plane_order(counts, sums, int(min_plane_points), area_grid, sample_grid, centroids, area_off,
+                             sample_off, order, remap)
     occupied = ws.get("as_occupied", max(n_area, 1), np.uint8)
     sample_acc = ws.get("as_sample_acc", (max(n_sample, 1), 4), np.float64)
-    centroids = sums / np.maximum(counts, 1)[:, None]
-    # Keep the planes that are large enough (the area comes from the pass below), the most supported first.
     h, w = image_shape if image_shape is not None else (1, 1)
     with_labels = labels is not None
     if with_labels and pixels is None and not grid.source_is_pixel:
         raise ValueError("pixels: needed with image_shape to make the label image")
-    big = counts >= min_plane_points
-    remap = np.full(n_all, -1, np.int32)
-    order = np.flatnonzero(big)
-    order = order[np.argsort(-counts[order], kind="stable")]
-    remap[order] = np.arange(len(order), dtype=np.int32)
     src_is_pixel = grid.source_is_pixel and pixels is None
     pix = np.ascontiguousarray(pixels, dtype=np.int32) if with_labels and not src_is_pixel else np.zeros(1, np.int32)
     lab = labels.reshape(-1) if with_labels else np.zeros(1, np.int32)
     kf.plane_extent(grid.points, point_plane, table, m, centroids, tb, float(area_patch_m), area_grid, area_off,
                     occupied, float(sample_spacing_m), sample_grid, sample_off, sample_acc, radii, areas, with_labels,
                     grid.source, src_is_pixel, pix, remap, w, h, int(pixel_stride), lab)
-    keep = order[areas[order] >= min_plane_area_m2].astype(np.int64)
-    if len(keep) < len(order):  # planes too small in area: renumber the labels
-        final = np.full(len(order), -1, np.int32)
-        final[remap[keep]] = np.arange(len(keep), dtype=np.int32)
-        if with_labels:
-            kf.remap_points(lab, lab.shape[0], final)
+    keep = np.empty(max(n_order, 1), np.int64)
+    final = np.empty(max(n_order, 1), np.int32)
+    nk = kf.keep_planes(order, n_order, areas, float(min_plane_area_m2), remap, keep, final)
+    keep = keep[:nk]
+    if nk < n_order and with_labels:  # planes too small in area: renumber the labels
+        kf.remap_points(lab, lab.shape[0], final)
     sample_points = np.empty((max(n_sample, 1), 3), np.float32)
-    sample_ptr = np.zeros(len(keep) + 1, np.int64)
+    sample_ptr = np.zeros(nk + 1, np.int64)
     n_samples = kf.collect_samples(sample_acc, sample_off, keep, sample_points, sample_ptr)
     sample_points = sample_points[:n_samples].copy()
+    out = (np.empty((nk, 3)), np.empty(nk), np.empty((nk, 3)), np.empty(nk, np.int64), np.empty(nk), np.empty(nk),
+           np.empty((nk, 4, 4)), np.empty((nk, 3)), np.empty((nk, 3, 3)))
+    kf.gather_planes(keep, nk, planes, centroids, counts, radii, areas, merged.covariances, sums, scatters, *out)
     return PlaneSet(
-        normals=planes[keep, :3].copy(), offsets=planes[keep, 3].copy(), centroids=centroids[keep],
-        counts=counts[keep], radii=radii[keep], areas=areas[keep], covariances=merged.covariances[keep],
-        sums=sums[keep], scatters=scatters[keep], sample_points=sample_points, sample_ptr=sample_ptr,
+        normals=out[0], offsets=out[1], centroids=out[2], counts=out[3], radii=out[4], areas=out[5],
+        covariances=out[6], sums=out[7], scatters=out[8], sample_points=sample_points, sample_ptr=sample_ptr,
         frame=frame, gravity=gravity, labels=labels,
     )
