@@ -76,17 +76,18 @@ def _row_keys(depth, v, stride, yf, cx, inv_fx, z_min, z_max, inv_size, bx, by, 
 def _image_keys(depth, stride, fy, cx, cy, inv_fx, z_min, z_max, inv_size, bx, by, bz, nyz, nz, ncell, pixel_key):
     h, w = depth.shape
     if stride == 1:
+        dflat = depth.reshape(-1)  # C-contiguous: a flat view, unsigned indices
         for v in range(h):
             yf = (v - cy) / fy
             i0 = v * w
             for u in range(w):
-                z = depth[v, u]
+                z = dflat[np.uint64(i0 + u)]
                 ok = z > 0.0 and z >= z_min and z <= z_max
                 px = np.float32((u - cx) * inv_fx * z)
                 py = np.float32(yf * z)
                 k = int(px * inv_size - bx) * nyz + int(py * inv_size - by) * nz + int(z * inv_size - bz)
                 inside = k >= 0 and k < ncell
-                pixel_key[i0 + u] = (k if inside else 0) if ok else -1
+                pixel_key[np.uint64(i0 + u)] = (k if inside else 0) if ok else -1
         return
     wr = (w + stride - 1) // stride
     i0 = 0
@@ -104,13 +105,13 @@ def _count_runs(pixel_key, n, cellcount):
     last = -1
     run = 0
     for i in range(n):
-        k = pixel_key[i]
+        k = pixel_key[np.uint64(i)]  # unsigned indices: no test for an index from the end
         if k < 0:
             continue
         m += 1
         if k != last:
             if last >= 0:
-                cellcount[last] += run
+                cellcount[np.uint64(last)] += run
             last = k
             run = 0
         run += 1
@@ -122,8 +123,8 @@ def _count_runs(pixel_key, n, cellcount):
 @njit(error_model="numpy")
 def key_image(depth, fx, fy, cx, cy, stride, z_min, z_max, inv_size, box, pixel_key, cellcount):
     """First pass of the image-order voxelization: the dense voxel key of every ``stride``-th pixel of ``depth``
-    (H, W) float32 into ``pixel_key`` (ceil(H/stride) * ceil(W/stride),) int32, -1 where the depth is invalid (as
-    :func:`backproject`), and the points per cell into ``cellcount`` (``nx*ny*nz`` int32, zeroed here). No point
+    (H, W) float32, C-contiguous, into ``pixel_key`` (ceil(H/stride) * ceil(W/stride),) int32, -1 where the depth is
+    invalid (as :func:`backproject`), and the points per cell into ``cellcount`` (``nx*ny*nz`` int32, zeroed here). No point
     is stored: :func:`scatter_image` computes them again, straight into their voxel's place. Returns the number
     of valid pixels. ``box`` must contain every valid point's cell (the viewing frustum between ``z_min`` and
     ``z_max``, see ``frustum_box``, with a one-cell margin); keys are clamped to it, which only guards the memory."""
