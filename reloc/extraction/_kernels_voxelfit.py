@@ -81,6 +81,13 @@ def _keep(bits, j, step):
 
 
 @njit(error_model="numpy")
+def _keep_flat(bits, j3, mask):
+    """:func:`_keep` on the flat view ``bits`` (3 M,) of the points' bits, ``j3 = 3 j`` (unsigned) and ``mask =
+    step - 1``."""
+    return ((bits[j3] ^ bits[j3 + np.uint64(1)] ^ bits[j3 + np.uint64(2)]) >> 1) & mask == 0
+
+
+@njit(error_model="numpy")
 def pow2_step(n, max_points):
     """Smallest power of two ``k`` with ``n / k <= max_points``."""
     k = 1
@@ -175,6 +182,8 @@ def voxel_weighted_refit(sorted_pts, point_bits, voxel_start, nv, counts, sums, 
     for v in range(nv):
         n_pick = max(n_pick, voxel_start[v + 1] - voxel_start[v] + 1)
     pick = np.empty(n_pick, np.int32)
+    flat = sorted_pts.reshape(-1)  # C-contiguous (M, 3)
+    bits = point_bits.reshape(-1)
     use_robust = irls_iterations > 0
     n_pass = max(irls_iterations, 1)
     for v in range(nv):
@@ -202,23 +211,26 @@ def voxel_weighted_refit(sorted_pts, point_bits, voxel_start, nv, counts, sums, 
         if step > 1:
             # The subsample's indices without a branch (one on the hash mispredicts about once in k points, and
             # one leaving the loop at ``cap`` costs a compare per point), then only its first ``cap`` points are read.
+            # Flat views and unsigned indices (no stride products, no test for an index from the end).
             n_keep = 0
+            mask = step - 1
             for j in range(a, b):
-                pick[n_keep] = j
-                n_keep += 1 if _keep(point_bits, j, step) else 0
+                pick[np.uint64(n_keep)] = j
+                n_keep += 1 if _keep_flat(bits, np.uint64(3 * j), mask) else 0
             n_keep = min(n_keep, cap)
         else:
             n_keep = min(b - a, cap)
             for i in range(n_keep):
                 pick[i] = a + i
         for i in range(n_keep):
-            j = pick[i]
-            x = sorted_pts[j, 0] - cx
-            y = sorted_pts[j, 1] - cy
-            z = sorted_pts[j, 2] - cz
-            qx[mloc] = x
-            qy[mloc] = y
-            qz[mloc] = z
+            j3 = np.uint64(3 * pick[np.uint64(i)])
+            x = flat[j3] - cx
+            y = flat[j3 + np.uint64(1)] - cy
+            z = flat[j3 + np.uint64(2)] - cz
+            um = np.uint64(mloc)
+            qx[um] = x
+            qy[um] = y
+            qz[um] = z
             r2max = max(r2max, x * x + y * y + z * z)
             mloc += 1
         r_max = math.sqrt(r2max)
