@@ -242,10 +242,17 @@ def _single_plane_voxel(sorted_pts, v, a, b, q, planes, band, power, coeff, ray_
     d = planes[q, 3]
     bq = band[q]
     n_in = 0
+    # A flat view of the points (C-contiguous) and unsigned indices (no test for an index from the end): this loop
+    # and the next then vectorise (the pass over every point 2.15 -> 1.77 ms per 640x480 frame; the same figures
+    # bit for bit with ray noise, the default; with noise along the normal the vectorised arithmetic rounds the
+    # last bit of a plane differently).
+    flat = sorted_pts.reshape(-1)
     for j in range(a, b):
-        px = np.float64(sorted_pts[j, 0])
-        py = np.float64(sorted_pts[j, 1])
-        pz = np.float64(sorted_pts[j, 2])
+        j3 = np.uint64(3 * j)
+        uk = np.uint64(j - a)
+        px = np.float64(flat[j3])
+        py = np.float64(flat[j3 + np.uint64(1)])
+        pz = np.float64(flat[j3 + np.uint64(2)])
         npd = nx * px + ny * py + nz * pz
         zz = pz if pz > MIN_DEPTH else MIN_DEPTH
         g = zz / _sigma_z(zz, power, coeff)  # 1 / sigma_z in depth units per metre of depth
@@ -253,24 +260,25 @@ def _single_plane_voxel(sorted_pts, v, a, b, q, planes, band, power, coeff, ray_
         lo = MIN_INCIDENCE * zz
         den = (an if an > lo else lo) if ray_mode else zz
         u = abs(npd + d) * g / den
-        scratch[0, j - a] = u
-        scratch[1, j - a] = g
+        scratch[0, uk] = u
+        scratch[1, uk] = g
         # float64 copies for the sums below (contiguous rows, not strided float32 loads again)
-        scratch[3, j - a] = px
-        scratch[4, j - a] = py
-        scratch[5, j - a] = pz
+        scratch[3, uk] = px
+        scratch[4, uk] = py
+        scratch[5, uk] = pz
     inv_b2 = 1.0 / (bq * bq)
     n_pos = 0
     for j in range(a, b):
-        u = scratch[0, j - a]
+        uk = np.uint64(j - a)
+        u = scratch[0, uk]
         inside = u <= bq
         n_in += 1 if inside else 0
-        point_plane[j] = q if inside else -1
+        point_plane[np.uint64(j)] = q if inside else -1
         # Tukey's weight base, stored so that the sums below see the same value that was counted here.
         t = 1.0 - u * u * inv_b2
         t = t if t > 0.0 else 0.0
         n_pos += 1 if t > 0.0 else 0
-        scratch[2, j - a] = t
+        scratch[2, uk] = t
     rx = refs[q, 0]
     ry = refs[q, 1]
     rz = refs[q, 2]
@@ -373,12 +381,14 @@ def _gather_points(sorted_pts, point_bits, step, by_order, a, b, scratch):
     rows ``scratch[0:3]`` (x, y, z); returns how many."""
     k = 0
     if step == 1:
+        flat = sorted_pts.reshape(-1)
         for j in range(a, b):
-            scratch[0, k] = sorted_pts[j, 0]
-            scratch[1, k] = sorted_pts[j, 1]
-            scratch[2, k] = sorted_pts[j, 2]
-            k += 1
-        return k
+            j3 = np.uint64(3 * j)
+            uk = np.uint64(j - a)
+            scratch[0, uk] = flat[j3]
+            scratch[1, uk] = flat[j3 + np.uint64(1)]
+            scratch[2, uk] = flat[j3 + np.uint64(2)]
+        return b - a
     for j in range(a, b, step if by_order else 1):
         if not by_order and not _keep(point_bits, j, step):
             continue
@@ -453,31 +463,33 @@ def _multi_plane_voxel(sorted_pts, point_bits, step, by_order, a, b, cand, nc, p
     n_in = 0
     n_of[:nc] = 0
     for i in range(mloc):
-        best = int(scratch[5, i])
+        ui = np.uint64(i)
+        best = int(scratch[5, ui])
         if best < 0:
             if step == 1:
-                point_plane[a + i] = -1
+                point_plane[np.uint64(a + i)] = -1
             continue
-        q = cand[best]
+        ub = np.uint64(best)
+        q = cand[ub]
         if step == 1:
-            point_plane[a + i] = q
+            point_plane[np.uint64(a + i)] = q
         n_in += 1
         if not accumulate:
             continue
-        n_of[best] = 1  # a plain store: no chain through memory from point to point
-        eb = scratch[SCR_E + best, i]
-        lim = CORNER_BANDS * band[q]
+        n_of[ub] = 1  # a plain store: no chain through memory from point to point
+        eb = scratch[np.uint64(SCR_E + best), ui]
+        lim = CORNER_BANDS * band[np.uint64(q)]
         amb = False
         for k in range(nc):
-            if k == best or parallel[best, k]:
+            if k == best or parallel[ub, np.uint64(k)]:
                 continue
-            if abs(scratch[SCR_E + k, i] - eb) < lim:
+            if abs(scratch[np.uint64(SCR_E + k), ui] - eb) < lim:
                 amb = True
                 break
         if amb:
-            acc_amb[q] += 1
+            acc_amb[np.uint64(q)] += 1
             # The nearest candidate, shifted past the candidates for a corner point.
-            scratch[5, i] = best + MAX_CANDIDATES + 1
+            scratch[5, ui] = best + MAX_CANDIDATES + 1
     if not accumulate:
         return n_in
     for k in range(nc):
