@@ -400,6 +400,9 @@ def voxel_moments(sorted_pts, voxel_start, nv, counts, sums, scatters):
     Reassociated sums (``fastmath`` reassoc/contract, no NaN/inf assumptions) vectorise: 2x faster, same values to
     rounding.
     """
+    # A flat view (C-contiguous points) and unsigned indices (no test for an index from the end): 2x faster again,
+    # the same sums (the same vectorised order).
+    flat = sorted_pts.reshape(-1)
     for v in range(nv):
         a = voxel_start[v]
         b = voxel_start[v + 1]
@@ -408,9 +411,10 @@ def voxel_moments(sorted_pts, voxel_start, nv, counts, sums, scatters):
         rz = np.float64(sorted_pts[a, 2])
         s0 = s1 = s2 = s3 = s4 = s5 = s6 = s7 = s8 = 0.0
         for j in range(a, b):
-            x = sorted_pts[j, 0] - rx
-            y = sorted_pts[j, 1] - ry
-            z = sorted_pts[j, 2] - rz
+            j3 = np.uint64(3 * j)
+            x = flat[j3] - rx
+            y = flat[j3 + np.uint64(1)] - ry
+            z = flat[j3 + np.uint64(2)] - rz
             s0 += x
             s1 += y
             s2 += z
