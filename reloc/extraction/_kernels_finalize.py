@@ -164,22 +164,24 @@ def _single_plane_assign(sorted_pts, a, b, q, planes, band, power, coeff, ray_mo
     nz = planes[q, 2]
     d = planes[q, 3]
     bq = band[q]
+    flat = sorted_pts.reshape(-1)  # flat view, unsigned indices: the loops vectorise (as in _single_plane_voxel)
     for j in range(a, b):
-        px = np.float64(sorted_pts[j, 0])
-        py = np.float64(sorted_pts[j, 1])
-        pz = np.float64(sorted_pts[j, 2])
+        j3 = np.uint64(3 * j)
+        px = np.float64(flat[j3])
+        py = np.float64(flat[j3 + np.uint64(1)])
+        pz = np.float64(flat[j3 + np.uint64(2)])
         npd = nx * px + ny * py + nz * pz
         zz = pz if pz > MIN_DEPTH else MIN_DEPTH
         g = zz / _sigma_z(zz, power, coeff)
         an = abs(npd)
         lo = MIN_INCIDENCE * zz
         den = (an if an > lo else lo) if ray_mode else zz
-        scratch[0, j - a] = abs(npd + d) * g / den
+        scratch[0, np.uint64(j - a)] = abs(npd + d) * g / den
     n_in = 0
     for j in range(a, b):
-        inside = scratch[0, j - a] <= bq
+        inside = scratch[0, np.uint64(j - a)] <= bq
         n_in += 1 if inside else 0
-        point_plane[j] = q if inside else -1
+        point_plane[np.uint64(j)] = q if inside else -1
     return n_in
 
 
