@@ -741,3 +741,78 @@ def test_plane_order_keep_and_gather_match_numpy():
             areas[keep_ref], covs[keep_ref], sums[keep_ref], scat[keep_ref])
     for got, ref in zip(out, want):
         assert np.array_equal(got, ref)
+
+
+@pytest.mark.parametrize("stride, same_cells", [(1, True), (1, False), (2, True)])
+def test_plane_extent_matches_numpy(stride, same_cells):
+    """The plane set's pass over the supporting points (radius, occupied area cells, per-cell sample sums, label
+    image through the refinement's table) against NumPy, point by point."""
+    from reloc.extraction import _kernels_finalize as kfin
+    from reloc.extraction._kernels_linalg import tangent_basis
+
+    rng = np.random.default_rng(12)
+    n_planes, m, width, height = 5, 3000, 40, 30
+    pts = rng.uniform([-1.0, -1.0, 1.0], [1.0, 1.0, 3.0], size=(m, 3)).astype(np.float32)
+    # Runs of points of one plane (as voxel by voxel), some without a plane.
+    point_plane = np.repeat(rng.integers(-1, 7, m // 20), 20).astype(np.int32)
+    table = np.array([0, 1, -1, 2, 3, 4, 1], np.int32)  # pass's planes to the output's (-1: dropped)
+    src = rng.integers(0, width * height, m).astype(np.int32)  # pixels (repeated: the last point wins)
+    if stride > 1:  # the top-left pixel of each stride x stride block
+        src = ((src // width) // stride * stride * width + (src % width) // stride * stride).astype(np.int32)
+    normals = rng.normal(size=(n_planes, 3))
+    normals /= np.linalg.norm(normals, axis=1)[:, None]
+    tb = np.array([tangent_basis(*n) for n in normals])
+    centroids = rng.normal(size=(n_planes, 3))
+    area_cell, sample_cell = (0.1, 0.1) if same_cells else (0.1, 0.25)
+    p64 = pts.astype(np.float64)
+    uv = np.stack([p64 @ tb[:, :3].T, p64 @ tb[:, 3:].T], axis=2)  # (m, P, 2)
+    grids = []
+    for cell in (area_cell, sample_cell):
+        g = np.zeros((n_planes, 4), np.int64)
+        g[:, 0] = np.floor(uv[:, :, 0].min(0) / cell) - 1
+        g[:, 1] = np.floor(uv[:, :, 1].min(0) / cell) - 1
+        g[:, 2] = np.floor(uv[:, :, 0].max(0) / cell) - g[:, 0] + 2
+        g[:, 3] = np.floor(uv[:, :, 1].max(0) / cell) - g[:, 1] + 2
+        grids.append(g)
+    area_grid, sample_grid = grids
+    area_off = np.concatenate([[0], np.cumsum(area_grid[:, 2] * area_grid[:, 3])]).astype(np.int64)
+    sample_off = np.concatenate([[0], np.cumsum(sample_grid[:, 2] * sample_grid[:, 3])]).astype(np.int64)
+    remap = np.array([2, -1, 0, 1, 3], np.int32)
+    occupied = np.full(area_off[-1], 7, np.uint8)
+    sample_acc = np.full((sample_off[-1], 4), np.nan)
+    radii = np.full(n_planes, np.nan)
+    areas = np.full(n_planes, np.nan)
+    labels = np.full(width * height, 99, np.int32)
+    kfin.plane_extent(pts, point_plane, table, m, centroids, tb, area_cell, area_grid, area_off, occupied, sample_cell,
+                      sample_grid, sample_off, sample_acc, radii, areas, True, src, True, np.zeros(1, np.int32), remap,
+                      width, height, stride, labels)
+    # NumPy reference.
+    plane = np.where(point_plane >= 0, table[np.maximum(point_plane, 0)], -1)
+    ref_radii = np.zeros(n_planes)
+    ref_acc = np.zeros((sample_off[-1], 4))
+    ref_occ = np.zeros(area_off[-1], bool)
+    ref_labels = np.full((height, width), -1, np.int32)
+    for j in np.flatnonzero(plane >= 0):
+        p = plane[j]
+        ref_radii[p] = max(ref_radii[p], np.linalg.norm(p64[j] - centroids[p]))
+        u, v = uv[j, p]
+        for grid, off, cell, out in ((area_grid, area_off, area_cell, "a"), (sample_grid, sample_off, sample_cell, "s")):
+            iu = min(max(int(np.floor(u / cell)) - grid[p, 0], 0), grid[p, 2] - 1)
+            iv = min(max(int(np.floor(v / cell)) - grid[p, 1], 0), grid[p, 3] - 1)
+            c = off[p] + iu * grid[p, 3] + iv
+            if out == "a":
+                ref_occ[c] = True
+            else:
+                ref_acc[c] += [1.0, *p64[j]]
+        if remap[p] >= 0 or stride == 1:
+            v0, u0 = divmod(int(src[j]), width)
+            ref_labels[v0:v0 + stride, u0:u0 + stride] = remap[p]
+    assert np.allclose(radii, ref_radii, rtol=1e-12)
+    assert np.array_equal(sample_acc[:, 0], ref_acc[:, 0])
+    assert np.allclose(sample_acc, ref_acc, rtol=1e-12, atol=1e-12)
+    if same_cells:
+        ref_areas = np.array([np.count_nonzero(ref_acc[sample_off[p]:sample_off[p + 1], 0]) for p in range(n_planes)])
+    else:
+        ref_areas = np.array([np.count_nonzero(ref_occ[area_off[p]:area_off[p + 1]]) for p in range(n_planes)])
+    assert np.array_equal(areas, ref_areas * area_cell * area_cell)
+    assert np.array_equal(labels.reshape(height, width), ref_labels)
