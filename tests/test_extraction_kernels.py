@@ -816,3 +816,50 @@ def test_plane_extent_matches_numpy(stride, same_cells):
         ref_areas = np.array([np.count_nonzero(ref_occ[area_off[p]:area_off[p + 1]]) for p in range(n_planes)])
     assert np.array_equal(areas, ref_areas * area_cell * area_cell)
     assert np.array_equal(labels.reshape(height, width), ref_labels)
+
+
+def _random_sym3(rng, kind):
+    """A symmetric 3x3 with a random rotation and eigenvalues of the given kind, scaled by 1e-6 .. 1e2."""
+    Q, _ = np.linalg.qr(rng.normal(size=(3, 3)))
+    if kind == "plane":  # a thin patch: one small eigenvalue, the two larger ones anywhere
+        lam = np.array([rng.uniform(1e-9, 1e-2), rng.uniform(0.05, 1.0), 1.0])
+    elif kind == "square":  # a thin square patch: the two larger eigenvalues equal to ~1e-9
+        lam = np.array([rng.uniform(1e-9, 1e-2), 1.0, 1.0 + rng.uniform(0.0, 1e-9)])
+    elif kind == "generic":
+        lam = np.sort(rng.uniform(0.0, 1.0, 3))
+    elif kind == "line":  # the two smaller equal: the eigenvector is not defined, only the eigenvalues
+        lam = np.array([1e-4, 1e-4 * (1.0 + 1e-10), 1.0])
+    elif kind == "sphere":
+        lam = np.ones(3)
+    else:  # "rank1"
+        lam = np.array([0.0, 0.0, 1.0])
+    return (Q * lam) @ Q.T * 10.0 ** rng.uniform(-6.0, 2.0)
+
+
+@pytest.mark.parametrize("kind", ["plane", "square", "generic", "line", "sphere", "rank1"])
+def test_smallest_eig3_matches_numpy_eigh(kind):
+    from reloc.extraction._kernels_linalg import smallest_eig3, sym_eig3
+
+    rng = np.random.default_rng(len(kind))
+    w = np.zeros(3)
+    V = np.zeros((3, 3))
+    w_j = np.zeros(3)
+    V_j = np.zeros((3, 3))
+    for _ in range(500):
+        M = _random_sym3(rng, kind)
+        lam, vec = np.linalg.eigh(M)
+        scale = np.abs(lam).max()
+        smallest_eig3(M.copy(), w, V)
+        sym_eig3(M.copy(), w_j, V_j)
+        assert np.allclose(w, lam, rtol=0.0, atol=1e-14 * scale)
+        assert np.allclose(w, w_j, rtol=0.0, atol=1e-14 * scale)
+        assert abs(np.linalg.norm(V[:, 0]) - 1.0) < 1e-14
+        # The eigenvector is defined (up to sign) where the smallest eigenvalue is simple; its error is about
+        # eps |A| / (lam1 - lam0), as the Jacobi sweeps'.
+        gap = (lam[1] - lam[0]) / scale
+        if gap > 1e-3:
+            tol = 1e-15 / gap + 1e-15
+            assert 1.0 - abs(V[:, 0] @ vec[:, 0]) < tol
+            assert 1.0 - abs(V[:, 0] @ V_j[:, 0]) < tol
+        else:
+            assert np.linalg.norm(M @ V[:, 0] - w[0] * V[:, 0]) < 1e-14 * scale

@@ -15,6 +15,8 @@ import numpy as np
 from reloc._numba import njit, register_warmup
 from reloc.extraction._kernels_fit import MIN_DEPTH, MIN_INCIDENCE
 from reloc.extraction._kernels_linalg import solve_plane, tangent_basis
+# numba caches a kernel with the kernels it calls compiled in, keyed on this file's stamp only: a change to the
+# plane solvers in _kernels_linalg (closed-form eigen, smallest_eig3) goes with an edit here.
 from reloc.extraction._kernels_voxel import voxel_lookup
 from reloc.extraction._kernels_voxelfit import _keep
 

@@ -21,6 +21,8 @@ import numpy as np
 
 from reloc._numba import njit, register_warmup
 from reloc.extraction._kernels_linalg import plane_covariance, plane_covariance_ray, solve_plane
+# numba caches a kernel with the kernels it calls compiled in, keyed on this file's stamp only: a change to the
+# plane solvers in _kernels_linalg (closed-form eigen, smallest_eig3) goes with an edit here.
 
 MIN_INCIDENCE = 0.05
 MIN_DEPTH = 1e-3

@@ -21,6 +21,8 @@ import numpy as np
 from reloc._numba import njit, register_warmup
 from reloc.extraction._kernels_fit import MIN_INCIDENCE, distance_sigma, noise_weight, point_sigma
 from reloc.extraction._kernels_linalg import plane_from_moments
+# numba caches a kernel with the kernels it calls compiled in, keyed on this file's stamp only: a change to the
+# plane solvers in _kernels_linalg (closed-form eigen, smallest_eig3) goes with an edit here.
 
 FEW = 0
 NOT_PLANAR = 1
