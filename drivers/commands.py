@@ -69,6 +69,9 @@ def _record(spec, out_dir, n_frames, duration_s, rate, config_file, options, ove
         scene = getattr(source, "scene", None)
         if scene is not None:
             extra.update(_scene_files(scene))
+        sequence = getattr(source, "sequence", None)
+        if sequence is not None:
+            extra.update(_sequence_files(sequence.path))
         click.echo(f"recording {source.name} ({source.intrinsics.width}x{source.intrinsics.height}) to {out_dir}",
                    err=True)
         try:
@@ -89,6 +92,19 @@ def _scene_files(scene) -> dict[str, str]:
     except ImportError:
         return {}
     return {"planes.json": json.dumps(planes_json(scene), indent=1) + "\n"}
+
+
+def _sequence_files(path) -> dict[str, str]:
+    """The simulator's ``planes.json`` (ground-truth planes) and ``sim.json`` (how it was made) of a replayed
+    sequence, when it has them: a recording of a simulated sequence keeps its ground truth."""
+    from pathlib import Path
+
+    out = {}
+    for name in ("planes.json", "sim.json"):
+        f = Path(path) / name
+        if f.is_file():
+            out[name] = f.read_text()
+    return out
 
 
 @click.command("devices")

@@ -32,6 +32,16 @@ def test_record_the_simulator_with_options(tmp_path, capsys):
     np.testing.assert_allclose(frame.gravity_cam, frame.T_world_cam[:3, :3].T @ [0, 0, -1], atol=1e-8)
 
 
+def test_a_recording_of_a_simulated_sequence_keeps_its_ground_truth_files(tmp_path):
+    src, rec = tmp_path / "sim", tmp_path / "rec"
+    assert main(["sim", "office", "--frames", "3", "--width", "80", "--height", "60", "--out", str(src)]) == 0
+    assert main(["record", "--camera", f"replay:{src}", "--out", str(rec), "--frames", "2"]) == 0
+    for name in ("planes.json", "sim.json"):
+        assert (rec / name).read_text() == (src / name).read_text()
+    planes = open_sequence(rec).scene_planes()
+    assert planes and planes == open_sequence(src).scene_planes()
+
+
 def test_record_errors(tmp_path, capsys):
     assert main(["record", "--camera", "webcam", "--out", str(tmp_path / "x")]) == 2
     assert "unknown frame source 'webcam'" in capsys.readouterr().err
