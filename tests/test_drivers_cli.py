@@ -38,6 +38,7 @@ def test_a_recording_of_a_simulated_sequence_keeps_its_ground_truth_files(tmp_pa
     assert main(["record", "--camera", f"replay:{src}", "--out", str(rec), "--frames", "2"]) == 0
     for name in ("planes.json", "sim.json"):
         assert (rec / name).read_text() == (src / name).read_text()
+    assert open_sequence(rec).label_files  # and its label images
     planes = open_sequence(rec).scene_planes()
     assert planes and planes == open_sequence(src).scene_planes()
 
