@@ -863,27 +863,3 @@ def test_smallest_eig3_matches_numpy_eigh(kind):
             assert 1.0 - abs(V[:, 0] @ V_j[:, 0]) < tol
         else:
             assert np.linalg.norm(M @ V[:, 0] - w[0] * V[:, 0]) < 1e-14 * scale
-
-
-@pytest.mark.parametrize("seed", [0, 1, 2])
-def test_count_runs_matches_numpy_bincount(seed):
-    rng = np.random.default_rng(seed)
-    # Runs of equal keys (1 to 12 long, as along an image row), some of them invalid (-1), one key in several runs.
-    lengths = rng.integers(1, 13, size=400)
-    values = rng.integers(-1, 50, size=400).astype(np.int32)
-    values[rng.random(400) < 0.15] = -1
-    keys = np.repeat(values, lengths).astype(np.int32)
-    n = len(keys)
-    cellcount = np.zeros(50, np.int32)
-    cellcount[3] = 7  # added to, not overwritten
-    run_start = np.full(n + 1, -99, np.int32)
-    m = kv._count_runs(keys, n, cellcount, run_start)
-    valid = keys[keys >= 0]
-    ref = np.bincount(valid, minlength=50).astype(np.int32)
-    ref[3] += 7
-    assert m == len(valid)
-    assert np.array_equal(cellcount, ref)
-    # A prefix only.
-    cellcount[:] = 0
-    assert kv._count_runs(keys, 100, cellcount, run_start) == int(np.count_nonzero(keys[:100] >= 0))
-    assert np.array_equal(cellcount, np.bincount(keys[:100][keys[:100] >= 0], minlength=50))

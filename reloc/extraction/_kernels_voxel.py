@@ -98,37 +98,33 @@ def _image_keys(depth, stride, fy, cx, cy, inv_fx, z_min, z_max, inv_size, bx, b
 
 
 @njit(error_model="numpy")
-def _count_runs(pixel_key, n, cellcount, run_start):
+def _count_runs(pixel_key, n, cellcount):
     """Points per cell of the keys ``pixel_key[:n]`` (-1 skipped) added to ``cellcount``; returns how many keys.
-    Neighbouring pixels mostly share a cell (~6 to a run): first the start of every run of equal keys into
-    ``run_start`` (>= n + 1 int32) without a branch, then one add per run (a branch per pixel on the key change
-    mispredicted at every run's end: 2x slower)."""
-    nr = 0
-    prev = np.int32(-2)
+    Neighbouring pixels mostly share a cell: a run is counted in a register, not through memory."""
+    m = 0
+    last = -1
+    run = 0
     for i in range(n):
         k = pixel_key[np.uint64(i)]  # unsigned indices: no test for an index from the end
-        run_start[np.uint64(nr)] = i
-        nr += 1 if k != prev else 0
-        prev = k
-    run_start[np.uint64(nr)] = n
-    m = 0
-    for r in range(nr):
-        i = run_start[np.uint64(r)]
-        k = pixel_key[np.uint64(i)]
         if k < 0:
             continue
-        run = run_start[np.uint64(r + 1)] - i
-        cellcount[np.uint64(k)] += run
-        m += run
+        m += 1
+        if k != last:
+            if last >= 0:
+                cellcount[np.uint64(last)] += run
+            last = k
+            run = 0
+        run += 1
+    if last >= 0:
+        cellcount[last] += run
     return m
 
 
 @njit(error_model="numpy")
-def key_image(depth, fx, fy, cx, cy, stride, z_min, z_max, inv_size, box, pixel_key, cellcount, run_start):
+def key_image(depth, fx, fy, cx, cy, stride, z_min, z_max, inv_size, box, pixel_key, cellcount):
     """First pass of the image-order voxelization: the dense voxel key of every ``stride``-th pixel of ``depth``
     (H, W) float32, C-contiguous, into ``pixel_key`` (ceil(H/stride) * ceil(W/stride),) int32, -1 where the depth is
-    invalid (as :func:`backproject`), and the points per cell into ``cellcount`` (``nx*ny*nz`` int32, zeroed here;
-    ``run_start`` int32 scratch, one longer than ``pixel_key``). No point
+    invalid (as :func:`backproject`), and the points per cell into ``cellcount`` (``nx*ny*nz`` int32, zeroed here). No point
     is stored: :func:`scatter_image` computes them again, straight into their voxel's place. Returns the number
     of valid pixels. ``box`` must contain every valid point's cell (the viewing frustum between ``z_min`` and
     ``z_max``, see ``frustum_box``, with a one-cell margin); keys are clamped to it, which only guards the memory."""
@@ -140,7 +136,7 @@ def key_image(depth, fx, fy, cx, cy, stride, z_min, z_max, inv_size, box, pixel_
     inv_fx = 1.0 / fx
     _image_keys(depth, stride, fy, cx, cy, inv_fx, z_min, z_max, inv_size, float(box[0]), float(box[1]),
                 float(box[2]), box[4] * box[5], box[5], ncell, pixel_key)
-    return _count_runs(pixel_key, ((h + stride - 1) // stride) * wr, cellcount, run_start)
+    return _count_runs(pixel_key, ((h + stride - 1) // stride) * wr, cellcount)
 
 
 @njit(error_model="numpy")
@@ -457,7 +453,7 @@ def _warmup() -> None:
     cellmap = np.empty(int(b[3] * b[4] * b[5]), np.int32)
     pkey = np.empty(m, np.int64)
     pkey32 = np.empty(20, np.int32)
-    key_image(depth, 5.0, 5.0, 2.0, 1.5, 1, 0.1, 10.0, 4.0, b, pkey32, cellmap, np.empty(21, np.int32))
+    key_image(depth, 5.0, 5.0, 2.0, 1.5, 1, 0.1, 10.0, 4.0, b, pkey32, cellmap)
     scatter_image(depth, 5.0, 5.0, 2.0, 1.5, 1, pkey32, cellmap, b, np.empty(m, np.int64), np.empty(m + 1, np.int64),
                   np.empty((m, 3), np.float32), np.empty(m, np.int32))
     count_keys(pts, m, 4.0, b, pkey, cellmap)

@@ -85,5 +85,5 @@ def depth_to_key_image(
     cellcount = ws.get("vx_cellmap", int(box[3] * box[4] * box[5]), np.int32)
     m = kv.key_image(depth, float(intrinsics.fx), float(intrinsics.fy), float(intrinsics.cx), float(intrinsics.cy),
                      int(pixel_stride), float(min_depth_m), float(max_depth_m), 1.0 / float(voxel_size_m), box,
-                     pixel_key, cellcount, ws.get("bp_run_start", cap + 1, np.int32))
+                     pixel_key, cellcount)
     return depth, pixel_key, cellcount, int(m)
