@@ -334,11 +334,12 @@ class HostBridge:
         """Send ``T_map_base`` (4x4, map frame z up) for the camera frame stamped ``stamp_ns`` (host clock).
 
         ``covariance`` is (6, 6) over (translation, rotation) in the map frame, or None (zeros: unknown).
-        With ``request_id`` = 0 the pose is rate-limited to pose_rate_hz; an answer to a request is always sent.
+        Unsolicited poses (``request_id`` = 0) other than OK (the TRACKED stream propagated with odometry) are
+        rate-limited to pose_rate_hz; a fresh relocalization (OK) and an answer to a request are always sent.
         The stamp goes out in the MCU's clock once the clock is synced (flag STAMP_MCU_CLOCK), else as given.
         """
         now = self.clock_ns()
-        if request_id == 0:
+        if request_id == 0 and status != PoseStatus.OK:
             with self._lock:
                 if self._last_pose_ns is not None and now - self._last_pose_ns < self.pose_min_interval_ns:
                     self.counters["poses_rate_limited"] += 1

@@ -237,7 +237,11 @@ def test_unsolicited_poses_are_rate_limited_and_answers_are_not():
 
     with bridge:
         assert wait_until(lambda: bridge.connected, 5.0)
-        results = [bridge.send_pose(np.eye(4), 0) for _ in range(5)]
+        results = [bridge.send_pose(np.eye(4), 0, status=PoseStatus.TRACKED) for _ in range(5)]
         assert results[0] == SendResult.SENT and set(results[1:]) == {SendResult.RATE_LIMITED}
         assert all(bridge.send_pose(np.eye(4), 0, request_id=i + 1) == SendResult.SENT for i in range(3))
         assert bridge.stats()["poses_rate_limited"] == 4 and bridge.stats()["answers_sent"] == 3
+        # The rate limit is for the TRACKED stream: a fresh relocalization (OK) goes out right behind one.
+        assert bridge.send_pose(np.eye(4), 0, status=PoseStatus.TRACKED) == SendResult.RATE_LIMITED
+        assert bridge.send_pose(np.eye(4), 0, status=PoseStatus.OK) == SendResult.SENT
+        assert bridge.stats()["poses_rate_limited"] == 5

@@ -148,7 +148,7 @@ def test_reloc_run_command_with_the_simulated_firmware_on_a_pty(tmp_path):
         assert result.exit_code == 0, result.output
         s = json.loads(out.read_text())
         # Let the last poses on the wire arrive before reading the firmware's side.
-        wait_until(lambda: mcu.counters["poses_received"] >= s["bridge"]["poses_sent"], 5.0)
+        assert wait_until(lambda: mcu.counters["poses_received"] >= s["bridge"]["poses_sent"], 10.0), mcu.stats()
         mcu_stats = mcu.stats()
         checks = list(mcu.pose_checks)
     assert s["frames"]["captured"] == 60 and s["source_events"]["end"] == "max_frames"
@@ -160,6 +160,9 @@ def test_reloc_run_command_with_the_simulated_firmware_on_a_pty(tmp_path):
     assert s["odometry"]["used"].get("bridge", 0) > 0
     # The firmware checked every relocalized pose it got against its own ground truth.
     ok_checks = [c for c in checks if c.status == PoseStatus.OK]
+    # Every relocalization reached it: none was held back behind the rate-limited TRACKED stream (CI once failed
+    # here: the run's only successful relocalizations were periodic ones, dropped that way).
+    assert len(ok_checks) >= s["relocalizations_ok"], (ok_checks, s["relocalizations_ok"], mcu_stats)
     assert ok_checks and all(c.ok for c in ok_checks), (ok_checks, mcu_stats)
     assert mcu_stats["decoder"]["frames_bad"] == 0
     assert "relocalizations:" in result.output
