@@ -52,11 +52,13 @@ class CameraConfig(_Section):
     pixel_stride: int = Field(1, ge=1, le=16, description="Use every n-th pixel in both directions.")
     gravity_source: Literal["imu", "mounting", "camera_y"] = Field(
         "camera_y",
-        description="Where the gravity direction of each frame comes from: the IMU, the mounting T_base_cam with a "
-        "level base, or the camera's +y axis (y down) within max_tilt_deg as in the paper.",
+        description="Where the gravity direction of a frame without its own (an IMU's) comes from: nowhere (imu), "
+        "the mounting T_base_cam on a level base (mounting), or the camera's +y axis (y down) within max_tilt_deg "
+        "as in the paper (camera_y).",
     )
     max_tilt_deg: float = Field(
-        20.0, ge=0, le=90, description="Tilt tolerance of the camera when gravity is taken from its y axis (tau_g)."
+        20.0, ge=0, le=90, description="Tilt tolerance of the camera when gravity is taken from its y axis (the "
+        "paper's allowance in tau_g): widens matching.ground_tolerance_deg for such plane sets."
     )
     T_base_cam: FloatSeq = Field(
         (0.0, 0.0, 1.0, 0.2, -1.0, 0.0, 0.0, 0.0, 0.0, -1.0, 0.0, 0.5, 0.0, 0.0, 0.0, 1.0),

@@ -18,6 +18,9 @@ Per plane ``i``:
 
 Frame-level:
 - ``gravity`` (3,) unit vector of gravity (pointing down) in this frame, or None when unknown.
+- ``gravity_tolerance_rad``: how far the true gravity may be from ``gravity``: 0 for a measured direction (IMU,
+  a level base's mounting, a simulator), the camera's tilt tolerance when it is the camera's y axis (paper, tau_g).
+  Matching widens its ground test by it.
 - ``labels`` (H, W) int32 plane index per pixel (-1 for none), only for planes of one depth frame.
 """
 
@@ -52,6 +55,7 @@ class PlaneSet:
     frame: str = "cam"
     gravity: np.ndarray | None = None
     labels: np.ndarray | None = field(default=None, repr=False)
+    gravity_tolerance_rad: float = 0.0
 
     def __post_init__(self) -> None:
         n = np.asarray(self.normals).shape[0] if np.ndim(self.normals) == 2 else -1
@@ -79,6 +83,10 @@ class PlaneSet:
             if not (np.isfinite(norm) and norm > 1e-12):
                 raise ValueError(f"PlaneSet.gravity: expected a finite non-zero 3-vector, got {g.tolist()}")
             object.__setattr__(self, "gravity", g / norm)
+        tol = self.gravity_tolerance_rad
+        if isinstance(tol, bool) or not isinstance(tol, (int, float, np.floating)) or not 0 <= tol <= np.pi / 2:
+            raise ValueError(f"PlaneSet.gravity_tolerance_rad: expected a number in [0, pi/2], got {tol!r}")
+        object.__setattr__(self, "gravity_tolerance_rad", float(tol))
 
     def check_geometry(self, name: str) -> None:
         """Raise ``ValueError`` naming ``name`` unless every plane's geometry and statistics are finite, its normal
@@ -108,12 +116,13 @@ class PlaneSet:
         return self.sample_points[self.sample_ptr[i] : self.sample_ptr[i + 1]]
 
     @classmethod
-    def empty(cls, frame: str = "cam", gravity: np.ndarray | None = None, labels: np.ndarray | None = None) -> "PlaneSet":
+    def empty(cls, frame: str = "cam", gravity: np.ndarray | None = None, labels: np.ndarray | None = None,
+              gravity_tolerance_rad: float = 0.0) -> "PlaneSet":
         return cls(
             normals=np.zeros((0, 3)), offsets=np.zeros(0), centroids=np.zeros((0, 3)), counts=np.zeros(0, np.int64),
             radii=np.zeros(0), areas=np.zeros(0), covariances=np.zeros((0, 4, 4)), sums=np.zeros((0, 3)),
             scatters=np.zeros((0, 3, 3)), sample_points=np.zeros((0, 3), np.float32), sample_ptr=np.zeros(1, np.int64),
-            frame=frame, gravity=gravity, labels=labels,
+            frame=frame, gravity=gravity, labels=labels, gravity_tolerance_rad=gravity_tolerance_rad,
         )
 
     def subset(self, index: np.ndarray) -> "PlaneSet":
@@ -169,6 +178,7 @@ class PlaneSet:
         out[prefix + "sample_points"] = self.sample_points
         out[prefix + "sample_ptr"] = self.sample_ptr
         out[prefix + "gravity"] = np.full(3, np.nan) if self.gravity is None else self.gravity
+        out[prefix + "gravity_tolerance_rad"] = np.float64(self.gravity_tolerance_rad)
         return out
 
     @classmethod
@@ -176,8 +186,11 @@ class PlaneSet:
         """Inverse of :meth:`to_arrays`; ``arrays`` is any mapping (an ``NpzFile`` included)."""
         kwargs = {name: np.asarray(arrays[prefix + name]) for name in _ROW_FIELDS}
         g = np.asarray(arrays[prefix + "gravity"], dtype=np.float64)
+        # Absent from files written before it existed: their gravity was taken as measured.
+        tol = float(np.asarray(arrays[prefix + "gravity_tolerance_rad"])) if (
+            prefix + "gravity_tolerance_rad") in arrays else 0.0
         return cls(
             **kwargs, sample_points=np.asarray(arrays[prefix + "sample_points"]),
             sample_ptr=np.asarray(arrays[prefix + "sample_ptr"]), frame=frame,
-            gravity=None if not np.all(np.isfinite(g)) else g,
+            gravity=None if not np.all(np.isfinite(g)) else g, gravity_tolerance_rad=tol,
         )

@@ -230,3 +230,49 @@ def test_points_with_a_sensor_origin_and_bad_input():
         extract_planes_from_points(np.zeros((10, 2)))
     with pytest.raises(ValueError, match="frame"):
         extract_planes(depth, ExtractionParams())
+
+
+def test_gravity_sources_mounting_camera_y_with_its_tilt_tolerance_and_imu():
+    """A camera pitched 25 degrees about its x axis in a box room: where each frame's gravity comes from, and the
+    floor found as ground (matching's test, tolerance 15 deg) only when the gravity's own tolerance allows it."""
+    from reloc.config import config_from_dict
+    from reloc.matching.index import horizontal_facing
+
+    R = _rot([1.0, 0.0, 0.0], np.radians(25.0))
+    depth, labels, planes = _box_room(R=R)
+    g_true = R @ np.array([0.0, 1.0, 0.0])  # the room's down (+y) seen from the pitched camera
+    floor = int(np.argmax(planes[:, :3] @ -g_true))  # the plane whose normal points up
+    frame = DepthFrame(depth, K, 0)
+
+    def facing_of_floor(ps):
+        i = _matches(ps, labels, planes)[floor + 1][0]
+        return int(horizontal_facing(ps, np.radians(15.0))[i])
+
+    # Mounting: the base is level and T_base_cam says how the camera sits on it (the default mounting, pitched).
+    R_base_cam = np.array(config_from_dict({}).camera.T_base_cam).reshape(4, 4)[:3, :3] @ R.T
+    T = np.eye(4)
+    T[:3, :3] = R_base_cam
+    cfg = config_from_dict({"camera": {"gravity_source": "mounting", "T_base_cam": T.ravel().tolist()}})
+    p = ExtractionParams.from_config(cfg)
+    assert p.gravity_fallback == "mounting"
+    np.testing.assert_allclose(p.mounting_gravity_cam, g_true, atol=1e-12)
+    ps = extract_planes(frame, p).planes
+    np.testing.assert_allclose(ps.gravity, g_true, atol=1e-12)
+    assert ps.gravity_tolerance_rad == 0.0 and facing_of_floor(ps) == 1
+    # The camera's y axis is 25 deg off: the paper's tilt tolerance (camera.max_tilt_deg) widens the ground test.
+    ps = extract_planes(frame, ExtractionParams.from_config(config_from_dict({}))).planes
+    np.testing.assert_allclose(ps.gravity, [0.0, 1.0, 0.0])
+    assert ps.gravity_tolerance_rad == pytest.approx(np.radians(20.0)) and facing_of_floor(ps) == 1
+    level = ExtractionParams.from_config(config_from_dict({"camera": {"max_tilt_deg": 0.0}}))
+    assert facing_of_floor(extract_planes(frame, level).planes) == 0
+    # A frame with its own (IMU) gravity keeps it, measured; with gravity_source imu a frame without one has none.
+    with_imu = DepthFrame(depth, K, 0, gravity_cam=g_true)
+    ps = extract_planes(with_imu, ExtractionParams()).planes
+    np.testing.assert_allclose(ps.gravity, g_true, atol=1e-12)
+    assert ps.gravity_tolerance_rad == 0.0 and facing_of_floor(ps) == 1
+    imu = ExtractionParams.from_config(config_from_dict({"camera": {"gravity_source": "imu"}}))
+    assert extract_planes(frame, imu).planes.gravity is None
+    with pytest.raises(ValueError, match="mounting_gravity_cam"):
+        ExtractionParams(mounting_gravity_cam=(0.0, 0.0, 0.0))
+    with pytest.raises(ValueError, match="camera_tilt_tolerance_rad"):
+        ExtractionParams(camera_tilt_tolerance_rad=-0.1)

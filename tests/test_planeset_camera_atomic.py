@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import os
 import stat
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -74,6 +75,16 @@ def test_planeset_subset_and_arrays_round_trip():
     for name in ("normals", "offsets", "centroids", "counts", "covariances", "sample_points", "sample_ptr", "gravity"):
         np.testing.assert_array_equal(getattr(back, name), getattr(ps, name))
     assert len(PlaneSet.empty()) == 0
+    # The gravity's tolerance goes with it; arrays written before it existed read as measured gravity (0).
+    tilted = replace(ps, gravity_tolerance_rad=0.35)
+    assert PlaneSet.from_arrays(tilted.to_arrays("m_"), "m_").gravity_tolerance_rad == 0.35
+    assert tilted.subset([1]).gravity_tolerance_rad == 0.35
+    assert tilted.transformed(tf.exp_se3(np.r_[0.1, 0.2, 0.3, 0.1, -0.2, 0.3]), "map").gravity_tolerance_rad == 0.35
+    del arrays["m_gravity_tolerance_rad"]
+    assert PlaneSet.from_arrays(arrays, "m_").gravity_tolerance_rad == 0.0
+    for bad in (-0.1, 2.0, float("nan"), "0.1"):
+        with pytest.raises(ValueError, match=r"PlaneSet.gravity_tolerance_rad: expected a number in \[0, pi/2\]"):
+            replace(ps, gravity_tolerance_rad=bad)
 
 
 def test_planeset_shape_errors():

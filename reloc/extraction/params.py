@@ -16,7 +16,7 @@ __all__ = ["ExtractionParams", "NOISE_MODELS", "noise_sigma", "noise_law_code"]
 # Noise law of a depth measurement at depth z (metres): sigma_z = coeff * z**power.
 NOISE_MODELS = {"constant": 0, "tof": 1, "kinect": 2, "stereo": 2}
 NOISE_DIRECTIONS = ("ray", "normal")
-GRAVITY_FALLBACKS = ("camera_y", "none")
+GRAVITY_FALLBACKS = ("camera_y", "mounting", "none")
 
 
 def noise_law_code(noise_model: str) -> int:
@@ -71,8 +71,10 @@ class ExtractionParams:
     neighbouring voxels join it when inside that band), ``refine_iterations`` (robust passes over the points near
     each merged plane: refit, then fragments merge again; 0 = planes straight from the merged moments),
     ``min_plane_points``,
-    ``min_plane_area_m2``; ``gravity_fallback`` says what a frame without ``gravity_cam`` gets: the camera's +y axis
-    (``"camera_y"``) or no gravity (``"none"``).
+    ``min_plane_area_m2``; ``gravity_fallback`` says what a frame without ``gravity_cam`` (an IMU's) gets: the
+    camera's +y axis (``"camera_y"``; the plane set's ``gravity_tolerance_rad`` is then ``camera_tilt_tolerance_rad``,
+    the paper's allowance for a camera mounted with a tilt), ``mounting_gravity_cam`` (``"mounting"``: a level base,
+    the direction fixed by how the camera is mounted) or no gravity (``"none"``).
     """
 
     min_depth_m: float = 0.3
@@ -114,6 +116,8 @@ class ExtractionParams:
     min_plane_points: int = 200
     min_plane_area_m2: float = 0.04
     gravity_fallback: str = "camera_y"
+    camera_tilt_tolerance_rad: float = math.radians(20.0)
+    mounting_gravity_cam: tuple = (0.0, 1.0, 0.0)
 
     def __post_init__(self) -> None:
         positive = (
@@ -152,6 +156,19 @@ class ExtractionParams:
         if self.noise_direction not in NOISE_DIRECTIONS:
             raise ValueError(f"ExtractionParams.noise_direction: expected one of {NOISE_DIRECTIONS}, "
                              f"got {self.noise_direction!r}")
+        tilt = self.camera_tilt_tolerance_rad
+        if isinstance(tilt, bool) or not isinstance(tilt, (int, float)) or not 0 <= tilt <= math.pi / 2:
+            raise ValueError(f"ExtractionParams.camera_tilt_tolerance_rad: expected a number in [0, pi/2], got {tilt!r}")
+        g = self.mounting_gravity_cam
+        try:
+            g = tuple(float(v) for v in g)
+        except (TypeError, ValueError):
+            g = ()
+        if len(g) != 3 or not all(math.isfinite(v) for v in g) or math.hypot(*g) < 1e-9:
+            raise ValueError(f"ExtractionParams.mounting_gravity_cam: expected a non-zero 3-vector, got "
+                             f"{self.mounting_gravity_cam!r}")
+        norm = math.hypot(*g)
+        object.__setattr__(self, "mounting_gravity_cam", tuple(v / norm for v in g))
         if self.gravity_fallback not in GRAVITY_FALLBACKS:
             raise ValueError(f"ExtractionParams.gravity_fallback: expected one of {GRAVITY_FALLBACKS}, "
                              f"got {self.gravity_fallback!r}")
@@ -183,7 +200,10 @@ class ExtractionParams:
             min_depth_m=cam.min_depth_m,
             max_depth_m=cam.max_depth_m,
             pixel_stride=cam.pixel_stride,
-            gravity_fallback="camera_y" if cam.gravity_source == "camera_y" else "none",
+            gravity_fallback={"camera_y": "camera_y", "mounting": "mounting"}.get(cam.gravity_source, "none"),
+            camera_tilt_tolerance_rad=math.radians(cam.max_tilt_deg),
+            # Base z up: gravity (0, 0, -1) in the base frame, R_base_cam^T of it in the camera frame.
+            mounting_gravity_cam=tuple(-np.asarray(cam.T_base_cam, dtype=np.float64).reshape(4, 4)[2, :3]),
             merge=mg.enabled,
         )
         for name in type(mg).model_fields:

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import threading
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -45,11 +45,17 @@ class PlaneExtractor:
         self._box = None
         self._box_key = None
 
-    def gravity_of(self, frame: DepthFrame) -> np.ndarray | None:
-        """The frame's gravity, or the fallback of ``params.gravity_fallback`` when it has none."""
+    def gravity_of(self, frame: DepthFrame) -> tuple[np.ndarray | None, float]:
+        """The frame's gravity, or the fallback of ``params.gravity_fallback`` when it has none, and how far the
+        true direction may be from it (radians: 0 when measured or fixed by the mounting)."""
         if frame.gravity_cam is not None:
-            return frame.gravity_cam
-        return gravity_from_camera_y() if self.params.gravity_fallback == "camera_y" else None
+            return frame.gravity_cam, 0.0
+        fallback = self.params.gravity_fallback
+        if fallback == "camera_y":
+            return gravity_from_camera_y(), self.params.camera_tilt_tolerance_rad
+        if fallback == "mounting":
+            return np.array(self.params.mounting_gravity_cam), 0.0
+        return None, 0.0
 
     def extract(self, frame: DepthFrame) -> ExtractionResult:
         """Planes of a depth frame, in its camera frame, with a label image."""
@@ -85,8 +91,9 @@ class PlaneExtractor:
                                       workspace=self.workspace)
             pts, pix = grid.points, None
         timings["voxelize"] = (time.perf_counter() - t) * 1e3
-        return self._from_grid(grid, pts, pix, frame.intrinsics.shape, self.gravity_of(frame), timings, t0,
-                               ordered=True)
+        gravity, tolerance = self.gravity_of(frame)
+        return self._from_grid(grid, pts, pix, frame.intrinsics.shape, gravity, timings, t0, ordered=True,
+                               gravity_tolerance_rad=tolerance)
 
     def extract_points(self, points_cam: np.ndarray, gravity=None, sensor_origin=(0.0, 0.0, 0.0)) -> ExtractionResult:
         """Planes of a point cloud in a frame parallel to the sensor's (z = viewing direction, the depth of the noise
@@ -115,7 +122,7 @@ class PlaneExtractor:
         return result
 
     def _from_grid(self, grid: VoxelGrid, pts, pix, image_shape, gravity, timings, t_start,
-                   ordered: bool = False) -> ExtractionResult:
+                   ordered: bool = False, gravity_tolerance_rad: float = 0.0) -> ExtractionResult:
         p = self.params
         ws = self.workspace
         noise = dict(noise_model=p.noise_model, noise_coeff=p.noise_coeff)
@@ -168,6 +175,8 @@ class PlaneExtractor:
             sample_spacing_m=p.sample_spacing_m, min_plane_points=p.min_plane_points,
             min_plane_area_m2=p.min_plane_area_m2, noise_direction=p.noise_direction, gravity=gravity, frame="cam", workspace=ws, **noise,
         )
+        if gravity_tolerance_rad:
+            planes = replace(planes, gravity_tolerance_rad=gravity_tolerance_rad)
         t_end = time.perf_counter()
         timings["finalize"] = (t_end - t) * 1e3
         timings["total"] = (t_end - t_start) * 1e3

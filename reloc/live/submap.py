@@ -12,19 +12,21 @@ from reloc.transforms import invert
 __all__ = ["SubmapWindow", "concat_plane_sets"]
 
 
-def concat_plane_sets(sets: list[PlaneSet], frame: str, gravity: np.ndarray | None) -> PlaneSet:
+def concat_plane_sets(sets: list[PlaneSet], frame: str, gravity: np.ndarray | None,
+                      gravity_tolerance_rad: float = 0.0) -> PlaneSet:
     """One plane set holding the rows of ``sets`` (all in the same frame ``frame``), samples included."""
     sets = [s for s in sets if len(s)]
+    g = dict(frame=frame, gravity=gravity, gravity_tolerance_rad=gravity_tolerance_rad)
     if not sets:
-        return PlaneSet.empty(frame=frame, gravity=gravity)
+        return PlaneSet.empty(**g)
     if len(sets) == 1:
         s = sets[0]
         return PlaneSet(**{k: getattr(s, k) for k in _FIELDS}, sample_points=s.sample_points,
-                        sample_ptr=s.sample_ptr, frame=frame, gravity=gravity)
+                        sample_ptr=s.sample_ptr, **g)
     cols = {k: np.concatenate([getattr(s, k) for s in sets]) for k in _FIELDS}
     sizes = np.concatenate([np.diff(s.sample_ptr) for s in sets])
     return PlaneSet(**cols, sample_points=np.concatenate([s.sample_points for s in sets]),
-                    sample_ptr=np.concatenate([[0], np.cumsum(sizes)]).astype(np.int64), frame=frame, gravity=gravity)
+                    sample_ptr=np.concatenate([[0], np.cumsum(sizes)]).astype(np.int64), **g)
 
 
 _FIELDS = ("normals", "offsets", "centroids", "counts", "radii", "areas", "covariances", "sums", "scatters")
@@ -78,4 +80,4 @@ class SubmapWindow:
         T_new_odom = invert(T_new)
         moved = [p if i == len(self._items) - 1 else p.transformed(T_new_odom @ T, "cam")
                  for i, (p, T, _) in enumerate(self._items)]
-        return concat_plane_sets(moved, "cam", newest.gravity)
+        return concat_plane_sets(moved, "cam", newest.gravity, newest.gravity_tolerance_rad)

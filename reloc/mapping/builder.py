@@ -161,6 +161,7 @@ class MapBuilder:
         self._free = (FreeSpace(p.free_space_voxel_m, p.free_space_margin_m, p.free_space_pixel_stride,
                                 p.free_space_max_range_m) if p.free_space_voxel_m > 0 else None)
         self._gravity_sum = np.zeros(3)
+        self._gravity_tolerance = 0.0  # the largest of the keyframes' (a camera-y gravity keeps its tilt allowance)
         self.keyframes = 0
         self.carved = 0
 
@@ -174,6 +175,7 @@ class MapBuilder:
         planes_map = planes_cam.transformed(T, "map")
         if planes_map.gravity is not None:
             self._gravity_sum += planes_map.gravity
+            self._gravity_tolerance = max(self._gravity_tolerance, planes_map.gravity_tolerance_rad)
         self.keyframes += 1
         if frame is not None and self._free is not None:
             self._free.carve(frame, T)
@@ -185,7 +187,8 @@ class MapBuilder:
         self._acc.merge_pass()
         g = self._gravity_sum
         gravity = g / np.linalg.norm(g) if np.linalg.norm(g) > 1e-9 else np.array([0.0, 0.0, -1.0])
-        planes, obs = self._acc.to_planeset(gravity=gravity, min_observations=self.params.min_observations)
+        planes, obs = self._acc.to_planeset(gravity=gravity, min_observations=self.params.min_observations,
+                                            gravity_tolerance_rad=self._gravity_tolerance)
         info = {"keyframe_count": self.keyframes}
         info.update(meta or {})
         if self._free is not None and self.carved:
@@ -262,12 +265,13 @@ def build_submap(
     acc.merge_pass()
     # Planes seen in one frame only are dropped from windows of 3+ frames: mostly facets of clutter.
     min_obs = params.submap_min_observations if len(plane_sets) >= 3 else 1
-    gravity = plane_sets[-1].gravity
+    gravity, tolerance = plane_sets[-1].gravity, plane_sets[-1].gravity_tolerance_rad
     if gravity is None:
         gs = [T_last_odom[:3, :3] @ np.asarray(T)[:3, :3] @ ps.gravity for ps, T in zip(plane_sets, T_odom_cams)
               if ps.gravity is not None]
         gravity = np.mean(gs, axis=0) if gs else None
-    planes, _ = acc.to_planeset(gravity=gravity, min_observations=min_obs)
+        tolerance = max((ps.gravity_tolerance_rad for ps in plane_sets if ps.gravity is not None), default=0.0)
+    planes, _ = acc.to_planeset(gravity=gravity, min_observations=min_obs, gravity_tolerance_rad=tolerance)
     return planes
 
 

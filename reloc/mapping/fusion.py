@@ -290,12 +290,15 @@ class PlaneAccumulator:
         return merges
 
     def to_planeset(self, *, gravity: np.ndarray | None, min_observations: int = 1, min_count: int = 3,
-                    area_patch_m: float | None = None) -> tuple[PlaneSet, np.ndarray]:
-        """The accumulated planes as a PlaneSet in this frame, and their observation counts (N,)."""
+                    area_patch_m: float | None = None, gravity_tolerance_rad: float = 0.0
+                    ) -> tuple[PlaneSet, np.ndarray]:
+        """The accumulated planes as a PlaneSet in this frame (with ``gravity`` and its tolerance), and their
+        observation counts (N,)."""
         keep = [m for m in range(len(self.normals))
                 if self.alive[m] and len(self.seen_in[m]) >= min_observations and self.counts[m] >= min_count]
         if not keep:
-            return PlaneSet.empty(frame=self.frame, gravity=gravity), np.zeros(0, np.int64)
+            return (PlaneSet.empty(frame=self.frame, gravity=gravity, gravity_tolerance_rad=gravity_tolerance_rad),
+                    np.zeros(0, np.int64))
         sums = np.array([self.sums[m] for m in keep])
         scat = np.array([self.scatters[m] for m in keep])
         cnt = np.array([self.counts[m] for m in keep], dtype=np.int64)
@@ -312,6 +315,6 @@ class PlaneAccumulator:
         ps = PlaneSet(
             normals=normals, offsets=offsets, centroids=cents, counts=cnt, radii=radii, areas=areas,
             covariances=covs, sums=sums, scatters=scat, sample_points=np.concatenate(samples).astype(np.float32),
-            sample_ptr=ptr, frame=self.frame, gravity=gravity,
+            sample_ptr=ptr, frame=self.frame, gravity=gravity, gravity_tolerance_rad=gravity_tolerance_rad,
         )
         return ps, np.array([len(self.seen_in[m]) for m in keep], dtype=np.int64)

@@ -33,7 +33,8 @@ _PREFIX = "plane_"
 _UNREADABLE = (zipfile.BadZipFile, zlib.error, EOFError, OSError, ValueError, NotImplementedError)
 _INT_ENTRIES = {_PREFIX + "counts", _PREFIX + "sample_ptr", "observations", "free_keys"}
 _FLOAT_ENTRIES = {_PREFIX + name for name in ("normals", "offsets", "centroids", "radii", "areas", "covariances",
-                                              "sums", "scatters", "sample_points", "gravity")}
+                                              "sums", "scatters", "sample_points", "gravity",
+                                              "gravity_tolerance_rad")}
 
 
 class MapFileError(ValueError):
@@ -86,7 +87,8 @@ class PlaneMap:
         """Counts and extents for ``reloc map info``."""
         p = self.planes
         up = -p.gravity if p.gravity is not None else np.array([0.0, 0.0, 1.0])
-        horizontal = np.abs(p.normals @ up) > np.cos(np.radians(15))
+        # The default ground test of matching (15 deg), widened by the gravity's own tolerance as matching does.
+        horizontal = np.abs(p.normals @ up) > np.cos(min(np.radians(15) + p.gravity_tolerance_rad, np.radians(89)))
         lo = p.sample_points.min(axis=0).tolist() if len(p.sample_points) else None
         hi = p.sample_points.max(axis=0).tolist() if len(p.sample_points) else None
         return {
@@ -98,6 +100,7 @@ class PlaneMap:
             "bounds_min_m": lo and [round(v, 3) for v in lo],
             "bounds_max_m": hi and [round(v, 3) for v in hi],
             "gravity": None if p.gravity is None else [round(float(v), 6) for v in p.gravity],
+            "gravity_tolerance_deg": round(math.degrees(p.gravity_tolerance_rad), 3),
             "observations_median": float(np.median(self.observations)) if len(self.observations) else 0.0,
             "free_space_voxels": int(len(self.free_keys)),
             "free_space_m3": round(float(len(self.free_keys) * self.free_voxel_m**3), 3),

@@ -28,13 +28,14 @@ __all__ = ["MapIndex", "build_index", "horizontal_facing", "with_dense_extents"]
 
 
 def horizontal_facing(planes: PlaneSet, tolerance_rad: float) -> np.ndarray:
-    """(N,) int8: +1 for planes facing up (normal within ``tolerance_rad`` of ``-gravity``), -1 facing down, 0
-    otherwise (and everywhere without gravity)."""
+    """(N,) int8: +1 for planes facing up (normal within ``tolerance_rad`` of ``-gravity``, widened by the plane
+    set's ``gravity_tolerance_rad``, at most 89 degrees), -1 facing down, 0 otherwise (and everywhere without
+    gravity)."""
     out = np.zeros(len(planes), dtype=np.int8)
     if planes.gravity is None or len(planes) == 0:
         return out
     c = planes.normals @ -planes.gravity
-    cos_tol = math.cos(tolerance_rad)
+    cos_tol = math.cos(min(tolerance_rad + planes.gravity_tolerance_rad, math.radians(89.0)))
     out[c >= cos_tol] = 1
     out[c <= -cos_tol] = -1
     return out
