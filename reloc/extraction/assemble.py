@@ -38,6 +38,7 @@ def assemble_plane_set(
     gravity: np.ndarray | None = None,
     frame: str = "cam",
     workspace: Workspace | None = None,
+    gravity_tolerance_rad: float = 0.0,
 ) -> PlaneSet:
     """The plane set of the merged planes.
 
@@ -57,7 +58,7 @@ def assemble_plane_set(
     if n_all == 0 or m == 0:
         if labels is not None:
             labels.fill(-1)
-        return PlaneSet.empty(frame=frame, gravity=gravity, labels=labels)
+        return PlaneSet.empty(frame=frame, gravity=gravity, labels=labels, gravity_tolerance_rad=gravity_tolerance_rad)
     planes = np.ascontiguousarray(merged.planes)
     band = float(inlier_sigmas) * np.sqrt(np.maximum(merged.variance_factors, 1.0))
     power = noise_law_code(noise_model)
@@ -134,5 +135,5 @@ def assemble_plane_set(
     return PlaneSet(
         normals=out[0], offsets=out[1], centroids=out[2], counts=out[3], radii=out[4], areas=out[5],
         covariances=out[6], sums=out[7], scatters=out[8], sample_points=sample_points, sample_ptr=sample_ptr,
-        frame=frame, gravity=gravity, labels=labels,
+        frame=frame, gravity=gravity, labels=labels, gravity_tolerance_rad=gravity_tolerance_rad,
     )

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import threading
 import time
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -173,10 +173,9 @@ class PlaneExtractor:
             grid, merged, pixels=pix, image_shape=image_shape, pixel_stride=p.pixel_stride,
             inlier_sigmas=p.inlier_sigmas, refine_boundary=p.refine_boundary, area_patch_m=p.area_patch_m,
             sample_spacing_m=p.sample_spacing_m, min_plane_points=p.min_plane_points,
-            min_plane_area_m2=p.min_plane_area_m2, noise_direction=p.noise_direction, gravity=gravity, frame="cam", workspace=ws, **noise,
+            min_plane_area_m2=p.min_plane_area_m2, noise_direction=p.noise_direction, gravity=gravity, frame="cam", workspace=ws,
+            gravity_tolerance_rad=gravity_tolerance_rad, **noise,
         )
-        if gravity_tolerance_rad:
-            planes = replace(planes, gravity_tolerance_rad=gravity_tolerance_rad)
         t_end = time.perf_counter()
         timings["finalize"] = (t_end - t) * 1e3
         timings["total"] = (t_end - t_start) * 1e3

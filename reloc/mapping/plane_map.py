@@ -16,7 +16,7 @@ import json
 import math
 import zipfile
 import zlib
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -85,10 +85,12 @@ class PlaneMap:
 
     def summary(self) -> dict:
         """Counts and extents for ``reloc map info``."""
+        from reloc.matching.index import horizontal_facing
+
         p = self.planes
-        up = -p.gravity if p.gravity is not None else np.array([0.0, 0.0, 1.0])
-        # The default ground test of matching (15 deg), widened by the gravity's own tolerance as matching does.
-        horizontal = np.abs(p.normals @ up) > np.cos(min(np.radians(15) + p.gravity_tolerance_rad, np.radians(89)))
+        # Matching's ground test at its default tolerance (15 deg); a map without gravity is taken as z up.
+        up_planes = p if p.gravity is not None else replace(p, gravity=np.array([0.0, 0.0, -1.0]))
+        horizontal = horizontal_facing(up_planes, math.radians(15.0)) != 0
         lo = p.sample_points.min(axis=0).tolist() if len(p.sample_points) else None
         hi = p.sample_points.max(axis=0).tolist() if len(p.sample_points) else None
         return {
