@@ -206,6 +206,20 @@ class MappingConfig(_Section):
     submap_min_observations: int = Field(
         2, ge=1, description="In submaps of 3+ frames, planes seen in fewer frames are dropped."
     )
+    submap_check_sigmas: float = Field(
+        4.0, ge=0, description="A window's older frame is left out of the submap when its planes, moved with "
+        "odometry, disagree with the newest frame's view of the same surfaces by more than this many sigmas of the "
+        "two fits (and the minima below): its odometry pose is off. 0 = no check.",
+    )
+    submap_check_min_angle_deg: float = Field(1.0, ge=0, description="...and by at least this angle...")
+    submap_check_min_offset_m: float = Field(0.02, ge=0, description="...or this offset at its centroid.")
+    submap_check_min_area_m2: float = Field(
+        0.3, ge=0, description="Only planes at least this large take part in the odometry check."
+    )
+    submap_check_fraction: float = Field(
+        0.34, ge=0, le=1, description="The frame is left out when its disagreeing planes weigh (square root of area) "
+        "at least this fraction of the planes it shares with the newest frame.",
+    )
 
 
 class MatchingConfig(_Section):

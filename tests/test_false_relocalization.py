@@ -10,6 +10,7 @@ its smallest plane; the relocalizer then fell back to the winning hypothesis's o
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -19,6 +20,7 @@ from firmware_bridge.mcu_sim import PlanarPath
 from reloc.camera import DepthFrame
 from reloc.config import Config
 from reloc.live.factory import load_plane_map, make_relocalizer, make_submap_fuser
+from reloc.mapping import MappingParams, build_submap
 from reloc.transforms import pose_error
 from sim.cameras import resolve_intrinsics
 from sim.ground_truth import visible_planes
@@ -53,9 +55,9 @@ def soak_query():
     return make_relocalizer(plane_map, cfg), make_submap_fuser(cfg), planes, poses
 
 
-def _locate(soak_query, poses):
-    relocalizer, fuse, planes, true_poses = soak_query
-    submap = fuse(planes, poses)
+def _locate(soak_query, poses, fuse=None):
+    relocalizer, default_fuse, planes, true_poses = soak_query
+    submap = (fuse or default_fuse)(planes, poses)
     res = relocalizer.locate(submap)
     if res.status != "relocalized":
         return res, len(submap), None
@@ -68,11 +70,24 @@ def test_exact_odometry_relocalizes_the_soak_submap_exactly(soak_query):
     assert err[0] < 1e-6 and err[1] < 1e-4
 
 
+def _without_odometry_check():
+    params = replace(MappingParams.from_config(Config()), submap_check_sigmas=0.0)
+    return lambda plane_sets, T_odom_cams: build_submap(plane_sets, T_odom_cams, params)
+
+
 def test_the_soak_false_relocalization_is_refused(soak_query):
     # The newest frame's odometry 8 mm and 0.45 deg off: the old code answered 0.141 m and 2.38 deg off.
     poses = list(soak_query[3])
     poses[-1] = planar_transform(-0.0082, -0.0086, math.radians(-0.45)) @ poses[-1]
-    res, n, err = _locate(soak_query, poses)
+    # The odometry check leaves older frames out (0.45 deg moves their planes' centroids, about 3 m away, by more
+    # than 2 cm): what remains (4 planes) is refused, never answered 0.14 m off.
+    stats = {}
+    params = MappingParams.from_config(Config())
+    res, n, err = _locate(soak_query, poses, lambda s, T: build_submap(s, T, params, stats))
+    assert stats["frames_left_out"] >= 1 and res.status != "relocalized", (stats, res.reason)
+    assert err is None or (err[0] <= FALSE_M and err[1] <= FALSE_DEG), f"false relocalization {err}"
+    # Without the check the three frames fuse into a displaced 5-plane submap; the matcher must refuse it.
+    res, n, err = _locate(soak_query, poses, _without_odometry_check())
     assert n == 5
     assert err is None or (err[0] <= FALSE_M and err[1] <= FALSE_DEG), f"false relocalization {err}"
     # Refused because the least-squares pose over its planes keeps only 4 of 5: found after the decision (refined
@@ -102,3 +117,47 @@ def test_small_odometry_errors_give_no_false_relocalization(soak_query):
             accepted += 1
             assert err[0] <= FALSE_M and err[1] <= FALSE_DEG, f"trial {trial}: false relocalization {err}"
     assert accepted >= 8  # most of these submaps still relocalize (correctly)
+
+
+def test_odometry_off_by_centimetres_and_degrees_gives_no_false_relocalization():
+    """Windows of three frames at random places of the soak's path whose odometry is off by N(0, 2 cm) and
+    N(0, 1.5 deg) (the newest frame's, the two older ones', or the oldest's): fused as they are, such a submap is a
+    rigidly displaced copy of the truth that matches the map (about one in five was false over 150 draws); the
+    odometry check leaves the disagreeing frames out, and none is false."""
+    cfg = Config()
+    T_base_cam = np.asarray(cfg.camera.T_base_cam, dtype=np.float64).reshape(4, 4)
+    scene = make_scene("living_room")
+    _, plane_map = load_plane_map("sim:living_room")
+    path = PlanarPath(center_m=(3.0, 1.8), amplitude_m=(1.5, 1.0), period_s=30.0)
+    intr = resolve_intrinsics("oak-d", 160, 100)
+    noise = make_noise("stereo")
+    relocalizer = make_relocalizer(plane_map, cfg)
+    checked, unchecked = make_submap_fuser(cfg), _without_odometry_check()
+    rng = np.random.default_rng(5)
+    false = {"checked": 0, "unchecked": 0}
+    correct = {"checked": 0, "unchecked": 0}
+    for trial in range(30):
+        t_end = rng.uniform(0.0, 30.0)
+        planes, poses = [], []
+        for k, t in enumerate((t_end - 2 / 30, t_end - 1 / 30, t_end)):
+            T = path.T_map_base(t) @ T_base_cam
+            depth, labels = render(scene, intr, T)
+            depth, labels = noise.apply(depth, labels, intr, np.random.default_rng([trial, k]))
+            frame = DepthFrame(depth, intr, int(t * 1e9), k, T_world_cam=T, gravity_cam=gravity_in_camera(T),
+                               pose_source="groundtruth", labels=labels)
+            planes.append(visible_planes(frame, scene, noise="stereo"))
+            poses.append(T)
+        P = planar_transform(*rng.normal(0.0, 0.02, 2), rng.normal(0.0, math.radians(1.5)))
+        odometry = list(poses)
+        for k in ((2,), (0, 1), (0,))[trial % 3]:
+            odometry[k] = P @ odometry[k]
+        for name, fuse in (("checked", checked), ("unchecked", unchecked)):
+            res = relocalizer.locate(fuse(planes, odometry))
+            if res.status == "relocalized":
+                m, deg = pose_error(res.T_map_cam, poses[-1])
+                ok = m <= FALSE_M and deg <= FALSE_DEG
+                correct[name] += ok
+                false[name] += not ok
+    assert false["checked"] == 0, (false, correct)
+    assert false["unchecked"] >= 2, (false, correct)  # the draws are hard: without the check some are false
+    assert correct["checked"] >= 20, (false, correct)

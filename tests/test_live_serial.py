@@ -158,6 +158,7 @@ def test_reloc_run_command_with_the_simulated_firmware_on_a_pty(tmp_path):
             assert r["position_error_m"] < tol_m and r["rotation_error_deg"] < tol_deg
     assert s["bridge"]["odometry"] > 0 and s["bridge"]["poses_sent"] >= 1 and s["bridge"]["frames_bad"] == 0
     assert s["odometry"]["used"].get("bridge", 0) > 0
+    assert isinstance(s["odometry"]["frames_left_out"], int) and s["odometry"]["frames_left_out"] >= 0
     # The firmware checked every relocalized pose it got against its own ground truth.
     ok_checks = [c for c in checks if c.status == PoseStatus.OK]
     # Every relocalization reached it: none was held back behind the rate-limited TRACKED stream (CI once failed

@@ -19,6 +19,7 @@ from reloc.mapping import (
     build_map,
     build_submap,
     load_map,
+    odometry_consistent_frames,
     oracle_source,
     plane_fit_from_stats,
     save_map,
@@ -26,6 +27,7 @@ from reloc.mapping import (
 )
 from reloc.mapping.plane_map import MAP_FORMAT_VERSION
 from reloc.planes import plane_errors
+from reloc.transforms import exp_se3
 from sim.scenes import make_scene
 
 
@@ -107,6 +109,41 @@ def test_submap_window_is_in_the_latest_camera_frame():
         assert best[0] < 0.05 and best[1] < 0.002
     with pytest.raises(ValueError, match="T_odom_cams"):
         build_submap(sets, Ts[:2])
+
+
+def test_odometry_check_leaves_out_a_frame_whose_odometry_is_off():
+    rects = furnished_room("office")
+    Ts = [look_at((1.0 + 0.3 * k, 2.5, 1.3), (4.0, 4.0 - 0.5 * k, 0.7)) for k in range(4)]
+    sets = [view_planes(rects, T) for T in Ts]
+    params = MappingParams()
+    assert odometry_consistent_frames(sets, Ts, params).tolist() == [True] * 4  # exact odometry: all kept
+
+    def off(k, xi):
+        out = list(Ts)
+        out[k] = exp_se3(np.asarray(xi, float)) @ Ts[k]  # frame k placed wrong by the odometry
+        return out
+
+    # Turned 2 degrees about the vertical, or 5 cm sideways: left out, and the submap is the other three's.
+    for xi in ([0, 0, 0, 0, 0, math.radians(2.0)], [0.05, 0, 0, 0, 0, 0]):
+        bad = off(1, xi)
+        assert odometry_consistent_frames(sets, bad, params).tolist() == [True, False, True, True], xi
+        stats = {}
+        sub = build_submap(sets, bad, params, stats)
+        ref = build_submap([sets[i] for i in (0, 2, 3)], [Ts[i] for i in (0, 2, 3)], params)
+        assert stats == {"frames_left_out": 1}
+        np.testing.assert_allclose(sub.normals, ref.normals, atol=1e-12)
+        np.testing.assert_allclose(sub.offsets, ref.offsets, atol=1e-12)
+    # Below the floors (0.5 deg, 1 cm at these 2-5 m) the frame is kept; with the check off, any frame is.
+    assert odometry_consistent_frames(sets, off(1, [0.005, 0, 0, 0, 0, math.radians(0.2)]), params).all()
+    assert odometry_consistent_frames(sets, off(1, [0, 0, 0, 0, 0, math.radians(5)]),
+                                      MappingParams(submap_check_sigmas=0.0)).all()
+    # When the newest frame's odometry is the one off, every older frame disagrees with it: the newest stands alone.
+    stats = {}
+    alone = build_submap(sets, off(3, [0, 0, 0, 0, 0, math.radians(2.0)]), params, stats)
+    assert stats == {"frames_left_out": 3}
+    np.testing.assert_allclose(alone.normals, build_submap(sets[-1:]).normals, atol=1e-12)
+    with pytest.raises(ValueError, match="submap_check_sigmas"):
+        MappingParams(submap_check_sigmas=-1.0)
 
 
 def test_map_round_trip(tmp_path, living_map):

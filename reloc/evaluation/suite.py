@@ -73,6 +73,7 @@ class Query:
     submap: PlaneSet
     ambiguous: bool
     timings_ms: dict = field(default_factory=dict)  # extraction (mean per frame) and submap building
+    frames_left_out: int = 0  # window frames the odometry check left out of the submap
 
 
 @dataclass
@@ -177,11 +178,13 @@ def make_queries(scene, spec: EvalSpec, source: Callable, mapping: MappingParams
             t0 = time.perf_counter()
             sets = [source(f) for f in frames]
             t1 = time.perf_counter()
-            submap = build_submap(sets, [f.T_world_cam for f in frames], mapping)
+            stats: dict = {}
+            submap = build_submap(sets, [f.T_world_cam for f in frames], mapping, stats)
             t2 = time.perf_counter()
             amb = is_ambiguous(scene, poses[idx], max_range_m=_max_range(spec.noise))
             times = {"planes_per_frame": (t1 - t0) * 1e3 / len(frames), "submap": (t2 - t1) * 1e3}
-            out.append(Query(scene.name, f"{scene.name}/{kind}/{q}", poses[end], submap, amb, times))
+            out.append(Query(scene.name, f"{scene.name}/{kind}/{q}", poses[end], submap, amb, times,
+                             stats.get("frames_left_out", 0)))
     return out
 
 

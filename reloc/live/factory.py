@@ -121,15 +121,28 @@ def make_relocalizer(plane_map, cfg):
     return Relocalizer(plane_map, MatchingParams.from_config(cfg))
 
 
+class SubmapFuser:
+    """``fuse(plane_sets, T_odom_cams)``: :func:`reloc.mapping.build_submap` with fixed mapping parameters; its
+    ``stats`` count the window frames the odometry check left out (``frames_left_out``)."""
+
+    def __init__(self, params):
+        from reloc.mapping import build_submap
+
+        self.params, self._build = params, build_submap
+        self.stats: dict = {"frames_left_out": 0}
+
+    def __call__(self, plane_sets, T_odom_cams):
+        return self._build(plane_sets, T_odom_cams, self.params, self.stats)
+
+
 def make_submap_fuser(cfg):
-    """``fuse(plane_sets, T_odom_cams)`` from :func:`reloc.mapping.build_submap` with the config's mapping
-    parameters, or None (planes of a window stacked unfused) when the mapping module is not in this build."""
+    """A :class:`SubmapFuser` with the config's mapping parameters, or None (planes of a window stacked unfused)
+    when the mapping module is not in this build."""
     try:
-        from reloc.mapping import MappingParams, build_submap
+        from reloc.mapping import MappingParams
     except ImportError:
         return None
-    params = MappingParams.from_config(cfg)
-    return lambda plane_sets, T_odom_cams: build_submap(plane_sets, T_odom_cams, params)
+    return SubmapFuser(MappingParams.from_config(cfg))
 
 
 def make_bridge(url: str, cfg, **overrides):

@@ -258,6 +258,7 @@ class LiveLoop:
         self._queue = DropOldestQueue(self.params.queue_frames)
         self._mailbox = _Mailbox()
         self._window = SubmapWindow(self.params.window_frames, fuse=fuse_submap)
+        self._fuse_stats = getattr(fuse_submap, "stats", None)  # a SubmapFuser counts frames its odometry check left out
         self._outbox: queue.Queue = queue.Queue(maxsize=64)
         self._stop = threading.Event()  # stop everything now (Ctrl-C, duration, stop())
         self._processing_done = threading.Event()
@@ -842,7 +843,8 @@ class LiveLoop:
             source_events={"end": self.source_end, "disconnects": self.disconnects, "reconnects": self.reconnects,
                            "reconnect_failures": self.reconnect_failures, "stalls": self.stalls,
                            "events": list(self.events)},
-            odometry={"used": dict(self.odometry_used), "jumps": self.odometry_jumps, "resets": self.odometry_resets},
+            odometry={"used": dict(self.odometry_used), "jumps": self.odometry_jumps, "resets": self.odometry_resets,
+                      "frames_left_out": int((self._fuse_stats or {}).get("frames_left_out", 0))},
             tracking={"lost": dict(self.lost_events), "superseded_requests": self._mailbox.superseded,
                       "relocalization_thread_errors": self.reloc_errors,
                       "final_state": self.state},

@@ -5,7 +5,15 @@ plane sets to one plane set in the latest camera frame). Files: :func:`save_map`
 (:class:`MapFileError` names the file and the problem).
 """
 
-from reloc.mapping.builder import MapBuilder, MappingParams, SubmapBuilder, build_map, build_submap, select_keyframes
+from reloc.mapping.builder import (
+    MapBuilder,
+    MappingParams,
+    SubmapBuilder,
+    build_map,
+    build_submap,
+    odometry_consistent_frames,
+    select_keyframes,
+)
 from reloc.mapping.fusion import FusionParams, PlaneAccumulator, plane_fit_from_stats
 from reloc.mapping.plane_map import MAP_FORMAT, MAP_FORMAT_VERSION, MapFileError, PlaneMap, load_map, save_map
 from reloc.mapping.sources import extraction_source, oracle_source
@@ -13,6 +21,7 @@ from reloc.mapping.sources import extraction_source, oracle_source
 __all__ = [
     "MapBuilder",
     "MappingParams",
+    "odometry_consistent_frames",
     "SubmapBuilder",
     "build_map",
     "build_submap",

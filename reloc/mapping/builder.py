@@ -9,7 +9,9 @@
   and returns the :class:`~reloc.mapping.plane_map.PlaneMap`.
 - :func:`build_map`: the one-shot call over frames with a plane source (extraction, or the simulator's oracle).
 - :func:`build_submap` / :class:`SubmapBuilder`: one frame's planes, or a window of K frames fused with their
-  relative (odometry) poses, in the frame of the latest camera, with its gravity.
+  relative (odometry) poses, in the frame of the latest camera, with its gravity. Older frames whose planes, moved
+  with odometry, disagree with the newest frame's view of the same surfaces are left out first
+  (:func:`odometry_consistent_frames`): a wrong odometry pose would otherwise make a rigidly displaced submap.
 """
 
 from __future__ import annotations
@@ -26,7 +28,17 @@ from reloc.mapping.plane_map import PlaneMap
 from reloc.planeset import PlaneSet
 from reloc.transforms import check_transform, invert, rotation_angle_rad
 
-__all__ = ["MappingParams", "select_keyframes", "FreeSpace", "MapBuilder", "build_map", "build_submap", "SubmapBuilder"]
+__all__ = ["MappingParams", "select_keyframes", "FreeSpace", "MapBuilder", "build_map", "build_submap", "SubmapBuilder",
+           "odometry_consistent_frames"]
+
+# A plane of an older frame and one of the newest frame are views of one surface when their normals are within
+# this angle, the older plane's centroid within this distance of the newer plane, and at least half of the older
+# plane's samples, projected on the newer plane, fall within about a cell of the newer plane's own (a door in its
+# niche is not the wall around it).
+_PARTNER_MAX_ANGLE_RAD = math.radians(10.0)
+_PARTNER_MAX_OFFSET_M = 0.3
+_PARTNER_CELL_M = 0.1
+_PARTNER_MIN_OVERLAP = 0.5
 
 
 @dataclass(frozen=True)
@@ -44,6 +56,11 @@ class MappingParams:
     free_space_margin_m: float = 0.3
     free_space_pixel_stride: int = 8
     free_space_max_range_m: float = 5.0
+    submap_check_sigmas: float = 4.0
+    submap_check_min_angle_rad: float = math.radians(1.0)
+    submap_check_min_offset_m: float = 0.02
+    submap_check_min_area_m2: float = 0.3
+    submap_check_fraction: float = 0.34
 
     def __post_init__(self) -> None:
         if self.keyframe_min_translation_m < 0 or self.keyframe_min_rotation_rad < 0:
@@ -57,6 +74,11 @@ class MappingParams:
                              f"{self.free_space_margin_m}, {self.free_space_pixel_stride}")
         if self.submap_window_frames < 1:
             raise ValueError(f"MappingParams.submap_window_frames: expected >= 1, got {self.submap_window_frames}")
+        for name in ("submap_check_sigmas", "submap_check_min_angle_rad", "submap_check_min_offset_m",
+                     "submap_check_min_area_m2", "submap_check_fraction"):
+            v = getattr(self, name)
+            if not (isinstance(v, (int, float)) and math.isfinite(v) and v >= 0):
+                raise ValueError(f"MappingParams.{name}: expected a finite number >= 0, got {v!r}")
         self.fusion  # validates the fusion thresholds
 
     @property
@@ -81,6 +103,11 @@ class MappingParams:
             free_space_margin_m=m.free_space_margin_m,
             free_space_pixel_stride=m.free_space_pixel_stride,
             free_space_max_range_m=m.free_space_max_range_m,
+            submap_check_sigmas=m.submap_check_sigmas,
+            submap_check_min_angle_rad=math.radians(m.submap_check_min_angle_deg),
+            submap_check_min_offset_m=m.submap_check_min_offset_m,
+            submap_check_min_area_m2=m.submap_check_min_area_m2,
+            submap_check_fraction=m.submap_check_fraction,
         )
 
 
@@ -238,16 +265,102 @@ def build_map(
     return builder.finish(info)
 
 
+def _offset_variance(cov: np.ndarray, point: np.ndarray) -> float:
+    """Variance of a plane's signed distance at ``point`` from the (4, 4) covariance of its ``(n, d)``."""
+    v = np.r_[point, 1.0]
+    return float(v @ cov @ v)
+
+
+def _plane_cells(points: np.ndarray, n: np.ndarray, cell: float, dilate: bool) -> np.ndarray:
+    """Keys of the ``cell`` squares of the plane with normal ``n`` that ``points`` project into (and, with
+    ``dilate``, their eight neighbours)."""
+    u = np.cross(n, [1.0, 0.0, 0.0] if abs(n[0]) < 0.9 else [0.0, 1.0, 0.0])
+    u /= np.linalg.norm(u)
+    ij = np.floor(np.c_[points @ u, points @ np.cross(n, u)] / cell).astype(np.int64)
+    shifts = [(a, b) for a in (-1, 0, 1) for b in (-1, 0, 1)] if dilate else [(0, 0)]
+    return np.concatenate([(ij[:, 0] + a) * 4_194_304 + (ij[:, 1] + b) for a, b in shifts])
+
+
+def odometry_consistent_frames(plane_sets: list[PlaneSet], T_odom_cams, params: MappingParams) -> np.ndarray:
+    """(K,) bool: the frames of a window whose odometry agrees with the newest frame's (the newest always does).
+
+    Each older frame's planes of at least ``submap_check_min_area_m2`` are moved with odometry into the newest
+    camera frame and paired with the newest frame's view of the same surface (normals within 10 degrees, centroid
+    within 0.3 m of it, half of its samples over the newer plane's; the nearest such plane). A pair disagrees by
+    more than ``submap_check_sigmas`` times the two fits' uncertainty (from their ``(n, d)`` covariances) and at
+    least ``submap_check_min_angle_rad`` or ``submap_check_min_offset_m``. The frame is left out when its
+    disagreeing pairs weigh (square root of area) at least ``submap_check_fraction`` of its pairs: its odometry pose
+    is off, and fused in it would shift or turn the submap rigidly, which no check of the matcher can see. (One
+    plane alone does not decide: fits of a surface seen partly, or a neighbour taken for it, differ by a degree or
+    two between views far apart.) Frames sharing no surface with the newest are kept (nothing to compare).
+    ``submap_check_sigmas`` = 0 turns the check off.
+    """
+    n = len(plane_sets)
+    keep = np.ones(n, dtype=bool)
+    p = params
+    newest = plane_sets[-1]
+    big = np.flatnonzero(newest.areas >= p.submap_check_min_area_m2)
+    if p.submap_check_sigmas <= 0 or n < 2 or len(big) == 0:
+        return keep
+    nb, db, cb, rb = newest.normals[big], newest.offsets[big], newest.centroids[big], newest.radii[big]
+    cells: dict[int, np.ndarray] = {}  # the newest plane's occupied cells (dilated), made when first needed
+    T_last_odom = invert(check_transform(T_odom_cams[-1], "T_odom_cams[-1]"))
+    cos_partner = math.cos(_PARTNER_MAX_ANGLE_RAD)
+    for k in range(n - 1):
+        sel = np.flatnonzero(plane_sets[k].areas >= p.submap_check_min_area_m2)
+        if len(sel) == 0:
+            continue
+        T = T_last_odom @ check_transform(T_odom_cams[k], f"T_odom_cams[{k}]")
+        moved = plane_sets[k].subset(sel).transformed(T, "cam")
+        paired = disagreeing = 0.0
+        for a in range(len(moved)):
+            ca = moved.centroids[a]
+            cos_ab = nb @ moved.normals[a]
+            off = nb @ ca + db
+            near = np.flatnonzero((cos_ab >= cos_partner) & (np.abs(off) <= _PARTNER_MAX_OFFSET_M)
+                                  & (np.linalg.norm(cb - ca, axis=1) <= rb + moved.radii[a]))
+            samples = moved.samples_of(a).astype(np.float64)
+            i = -1
+            for c in near[np.argsort(np.abs(off[near]), kind="stable")]:
+                b = int(big[c])
+                if b not in cells:
+                    cells[b] = np.unique(_plane_cells(newest.samples_of(b).astype(np.float64), newest.normals[b],
+                                                      _PARTNER_CELL_M, dilate=True))
+                inside = np.isin(_plane_cells(samples, newest.normals[b], _PARTNER_CELL_M, dilate=False), cells[b])
+                if len(samples) and inside.mean() >= _PARTNER_MIN_OVERLAP:
+                    i = int(c)
+                    break
+            if i < 0:
+                continue
+            b = int(big[i])
+            angle = math.acos(min(1.0, float(cos_ab[i])))
+            sigma_angle = math.sqrt(max(0.0, float(np.trace(moved.covariances[a][:3, :3])
+                                                   + np.trace(newest.covariances[b][:3, :3]))))
+            sigma_offset = math.sqrt(max(0.0, _offset_variance(newest.covariances[b], ca)
+                                         + _offset_variance(moved.covariances[a], ca)))
+            weight = math.sqrt(min(moved.areas[a], newest.areas[b]))
+            paired += weight
+            if (angle > max(p.submap_check_min_angle_rad, p.submap_check_sigmas * sigma_angle)
+                    or abs(off[i]) > max(p.submap_check_min_offset_m, p.submap_check_sigmas * sigma_offset)):
+                disagreeing += weight
+        if paired > 0 and disagreeing >= p.submap_check_fraction * paired:
+            keep[k] = False
+    return keep
+
+
 def build_submap(
     plane_sets: list[PlaneSet],
     T_odom_cams: list[np.ndarray] | np.ndarray | None = None,
     params: MappingParams | None = None,
+    stats: dict | None = None,
 ) -> PlaneSet:
     """The submap of a window of frames in the frame of the LAST camera (frame "cam", its gravity).
 
     ``plane_sets``: each frame's planes in its own camera frame; ``T_odom_cams``: their poses in any common frame
     (odometry; only relative poses matter), required when more than one frame is given. One frame returns its
-    planes unchanged (labels dropped).
+    planes unchanged (labels dropped). Older frames whose odometry disagrees with the newest frame's view are left
+    out (:func:`odometry_consistent_frames`); with ``stats`` (a dict) their number is added to
+    ``stats["frames_left_out"]``.
     """
     if not plane_sets:
         raise ValueError("plane_sets: expected at least one plane set, got none")
@@ -257,6 +370,14 @@ def build_submap(
         raise ValueError(f"T_odom_cams: expected {len(plane_sets)} poses (one per plane set), got "
                          f"{None if T_odom_cams is None else len(T_odom_cams)}")
     params = params or MappingParams()
+    keep = odometry_consistent_frames(plane_sets, T_odom_cams, params)
+    if not keep.all():
+        if stats is not None:
+            stats["frames_left_out"] = stats.get("frames_left_out", 0) + int((~keep).sum())
+        plane_sets = [ps for ps, ok in zip(plane_sets, keep) if ok]
+        T_odom_cams = [T for T, ok in zip(T_odom_cams, keep) if ok]
+        if len(plane_sets) == 1:
+            return plane_sets[0].subset(np.arange(len(plane_sets[0])))
     T_last_odom = invert(check_transform(T_odom_cams[-1], "T_odom_cams[-1]"))
     acc = PlaneAccumulator(params.fusion, frame="cam")
     for k, (ps, T) in enumerate(zip(plane_sets, T_odom_cams)):
