@@ -271,14 +271,21 @@ def _offset_variance(cov: np.ndarray, point: np.ndarray) -> float:
     return float(v @ cov @ v)
 
 
-def _plane_cells(points: np.ndarray, n: np.ndarray, cell: float, dilate: bool) -> np.ndarray:
-    """Keys of the ``cell`` squares of the plane with normal ``n`` that ``points`` project into (and, with
-    ``dilate``, their eight neighbours)."""
-    u = np.cross(n, [1.0, 0.0, 0.0] if abs(n[0]) < 0.9 else [0.0, 1.0, 0.0])
+def _plane_basis(n: np.ndarray) -> np.ndarray:
+    """(3, 2): two unit vectors spanning the plane with normal ``n``."""
+    u = np.array([0.0, n[2], -n[1]]) if abs(n[0]) < 0.9 else np.array([-n[2], 0.0, n[0]])  # n x e_x, or n x e_y
     u /= np.linalg.norm(u)
-    ij = np.floor(np.c_[points @ u, points @ np.cross(n, u)] / cell).astype(np.int64)
-    shifts = [(a, b) for a in (-1, 0, 1) for b in (-1, 0, 1)] if dilate else [(0, 0)]
-    return np.concatenate([(ij[:, 0] + a) * 4_194_304 + (ij[:, 1] + b) for a, b in shifts])
+    v = np.array([n[1] * u[2] - n[2] * u[1], n[2] * u[0] - n[0] * u[2], n[0] * u[1] - n[1] * u[0]])
+    return np.stack([u, v], axis=1)
+
+
+_NEIGHBOURS = np.array([a * 4_194_304 + b for a in (-1, 0, 1) for b in (-1, 0, 1)], dtype=np.int64)
+
+
+def _plane_cells(points: np.ndarray, basis: np.ndarray, cell: float) -> np.ndarray:
+    """Keys of the ``cell`` squares of a plane (``basis`` from :func:`_plane_basis`) that ``points`` project into."""
+    ij = np.floor(points @ basis / cell).astype(np.int64)
+    return ij[:, 0] * 4_194_304 + ij[:, 1]
 
 
 def odometry_consistent_frames(plane_sets: list[PlaneSet], T_odom_cams, params: MappingParams) -> np.ndarray:
@@ -303,7 +310,7 @@ def odometry_consistent_frames(plane_sets: list[PlaneSet], T_odom_cams, params: 
     if p.submap_check_sigmas <= 0 or n < 2 or len(big) == 0:
         return keep
     nb, db, cb, rb = newest.normals[big], newest.offsets[big], newest.centroids[big], newest.radii[big]
-    cells: dict[int, np.ndarray] = {}  # the newest plane's occupied cells (dilated), made when first needed
+    cells: dict[int, tuple] = {}  # a newest plane's basis and sorted occupied cells (dilated), made when first needed
     T_last_odom = invert(check_transform(T_odom_cams[-1], "T_odom_cams[-1]"))
     cos_partner = math.cos(_PARTNER_MAX_ANGLE_RAD)
     for k in range(n - 1):
@@ -324,10 +331,13 @@ def odometry_consistent_frames(plane_sets: list[PlaneSet], T_odom_cams, params: 
             for c in near[np.argsort(np.abs(off[near]), kind="stable")]:
                 b = int(big[c])
                 if b not in cells:
-                    cells[b] = np.unique(_plane_cells(newest.samples_of(b).astype(np.float64), newest.normals[b],
-                                                      _PARTNER_CELL_M, dilate=True))
-                inside = np.isin(_plane_cells(samples, newest.normals[b], _PARTNER_CELL_M, dilate=False), cells[b])
-                if len(samples) and inside.mean() >= _PARTNER_MIN_OVERLAP:
+                    basis = _plane_basis(newest.normals[b])
+                    own = _plane_cells(newest.samples_of(b).astype(np.float64), basis, _PARTNER_CELL_M)
+                    cells[b] = (basis, np.unique((own[:, None] + _NEIGHBOURS[None, :]).ravel()))
+                basis, occupied = cells[b]
+                keys = _plane_cells(samples, basis, _PARTNER_CELL_M)
+                at = np.minimum(np.searchsorted(occupied, keys), len(occupied) - 1)
+                if len(keys) and len(occupied) and np.mean(occupied[at] == keys) >= _PARTNER_MIN_OVERLAP:
                     i = int(c)
                     break
             if i < 0:
