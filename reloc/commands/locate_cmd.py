@@ -26,9 +26,11 @@ def locate(seq, map_path, out_path, frames_spec, window, stride, every, source, 
     """Relocalize frames of SEQ in the map: one JSON line per query frame.
 
     Each query is a submap of the last --window frames (--stride apart) ending at the query frame, fused with the
-    sequence's poses as odometry (only relative poses are used; frames without a pose restart the window). A line
-    holds the frame index, stamp_ns, status, reason, T_map_cam (4x4 nested list, or null), score, the matched plane
-    count, the counts of every stage and the milliseconds of every stage (extraction and submap building included).
+    sequence's poses as odometry (only relative poses are used; frames without a pose restart the window; frames
+    whose planes disagree with the query frame's are left out). A line holds the frame index, stamp_ns, status,
+    reason, T_map_cam (4x4 nested list, or null), score, the matched plane count, the window's frame count and how
+    many of them the odometry check left out, the counts of every stage and the milliseconds of every stage
+    (extraction and submap building included).
     A frame that cannot be read or processed gets a line with status "error"; the others go on.
     """
     import json
@@ -76,15 +78,16 @@ def locate(seq, map_path, out_path, frames_spec, window, stride, every, source, 
             else:
                 items = [it for it in items if it[1] is not None]
             t0 = time.perf_counter()
+            fusion: dict = {}
             submap = build_submap([it[0] for it in items], [it[1] for it in items] if len(items) > 1 else None,
-                                  mapping)
+                                  mapping, fusion)
             submap_ms = (time.perf_counter() - t0) * 1e3
             res = reloc.locate(submap)
             d = res.to_dict()
             record.update(
                 status=d["status"], reason=d["reason"], T_map_cam=d["T_map_cam"], score=d["score"],
                 ambiguity_ratio=d["ambiguity_ratio"], matched_planes=d["matched_planes"],
-                window_frames=len(items), counts=d["counts"],
+                window_frames=len(items), frames_left_out=fusion.get("frames_left_out", 0), counts=d["counts"],
                 timings_ms={"extraction": round(float(items[-1][2]), 4), "submap": round(submap_ms, 4),
                             **d["timings_ms"]},
             )
