@@ -142,8 +142,12 @@ def test_odometry_check_leaves_out_a_frame_whose_odometry_is_off():
     alone = build_submap(sets, off(3, [0, 0, 0, 0, 0, math.radians(2.0)]), params, stats)
     assert stats == {"frames_left_out": 3}
     np.testing.assert_allclose(alone.normals, build_submap(sets[-1:]).normals, atol=1e-12)
+    # A fraction of 0: any disagreeing plane leaves its frame out, agreeing ones never do.
+    assert odometry_consistent_frames(sets, Ts, MappingParams(submap_check_fraction=0.0)).all()
     with pytest.raises(ValueError, match="submap_check_sigmas"):
         MappingParams(submap_check_sigmas=-1.0)
+    with pytest.raises(ValueError, match=r"submap_check_fraction: expected a fraction in \[0, 1\]"):
+        MappingParams(submap_check_fraction=1.5)
 
 
 def test_map_round_trip(tmp_path, living_map):

@@ -79,6 +79,9 @@ class MappingParams:
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v >= 0):
                 raise ValueError(f"MappingParams.{name}: expected a finite number >= 0, got {v!r}")
+        if self.submap_check_fraction > 1:
+            raise ValueError(f"MappingParams.submap_check_fraction: expected a fraction in [0, 1], got "
+                             f"{self.submap_check_fraction!r}")
         self.fusion  # validates the fusion thresholds
 
     @property
@@ -353,7 +356,7 @@ def odometry_consistent_frames(plane_sets: list[PlaneSet], T_odom_cams, params: 
             if (angle > max(p.submap_check_min_angle_rad, p.submap_check_sigmas * sigma_angle)
                     or abs(off[i]) > max(p.submap_check_min_offset_m, p.submap_check_sigmas * sigma_offset)):
                 disagreeing += weight
-        if paired > 0 and disagreeing >= p.submap_check_fraction * paired:
+        if disagreeing > 0 and disagreeing >= p.submap_check_fraction * paired:
             keep[k] = False
     return keep
 
