@@ -8,13 +8,16 @@ or keeps those of the file it replaces, not the private ``0o600`` of a temporary
 from __future__ import annotations
 
 import contextlib
+import errno
 import os
+import secrets
 import stat
-import tempfile
 from pathlib import Path
 from typing import IO, Iterator
 
 __all__ = ["atomic_write", "atomic_write_bytes", "atomic_write_text"]
+
+_CREATE_FLAGS = os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_CLOEXEC", 0) | getattr(os, "O_BINARY", 0)
 
 
 def _umask() -> int:
@@ -50,18 +53,36 @@ def atomic_write(path: str | os.PathLike, mode: str = "wb") -> Iterator[IO]:
     target = Path(path)
     target.parent.mkdir(parents=True, exist_ok=True)
     mode_bits = _final_mode(target)
-    fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".tmp", dir=target.parent)
+    # The temporary file's name is known before it exists, so that an interrupt (Ctrl-C, SIGTERM turned into an
+    # exception) arriving right after it is created still finds it to remove: with tempfile.mkstemp the name only
+    # comes back once the file exists, and a SIGINT in between left it behind (seen in CI).
+    tmp = fd = None
     try:
-        with contextlib.suppress(OSError):  # mkstemp makes it 0o600; a file system without modes keeps its own
+        for _ in range(100):
+            tmp = target.parent / f".{target.name}.{secrets.token_hex(6)}.tmp"
+            try:
+                fd = os.open(tmp, _CREATE_FLAGS, 0o600)
+                break
+            except FileExistsError:
+                tmp = None
+        else:
+            raise FileExistsError(errno.EEXIST, f"no free temporary file name beside {target}")
+        with contextlib.suppress(OSError):  # created 0o600; a file system without modes keeps its own
             os.chmod(tmp, mode_bits)
-        with os.fdopen(fd, mode, **({"encoding": "utf-8"} if mode == "w" else {})) as fh:
+        fh = os.fdopen(fd, mode, **({"encoding": "utf-8"} if mode == "w" else {}))
+        fd = None  # the file object owns it now
+        with fh:
             yield fh
             fh.flush()
             os.fsync(fh.fileno())
         os.replace(tmp, target)
     except BaseException as exc:
-        with contextlib.suppress(OSError):
-            os.unlink(tmp)
+        if fd is not None:
+            with contextlib.suppress(OSError):
+                os.close(fd)
+        if tmp is not None:
+            with contextlib.suppress(OSError):
+                os.unlink(tmp)
         if isinstance(exc, OSError) and exc.errno is not None and exc.filename is None:
             # "No space left on device" alone does not say which file; name it, and that it was not replaced.
             raise OSError(exc.errno, f"{exc.strerror or exc}: writing {target} failed; the file is as it was "

@@ -172,3 +172,29 @@ def test_atomic_write_gives_normal_permissions_and_keeps_existing_ones(tmp_path)
         assert stat.S_IMODE(kept.stat().st_mode) == 0o604 and kept.read_text() == "new"
     finally:
         os.umask(old)
+
+
+def test_atomic_write_interrupted_just_after_creating_its_temporary_leaves_nothing(tmp_path, monkeypatch):
+    # Ctrl-C landing right after the temporary file exists (CI once found one left behind by `reloc record`).
+    import reloc.atomic as atomic
+
+    target = tmp_path / "map.npz"
+    target.write_bytes(b"old")
+    real_open = os.open
+    opened = []
+
+    def open_then_interrupt(path, flags, mode=0o777, **kw):
+        fd = real_open(path, flags, mode, **kw)
+        if str(path).endswith(".tmp"):
+            opened.append(fd)
+            raise KeyboardInterrupt
+        return fd
+
+    monkeypatch.setattr(atomic.os, "open", open_then_interrupt)
+    with pytest.raises(KeyboardInterrupt):
+        atomic.atomic_write_bytes(target, b"new")
+    monkeypatch.undo()
+    for fd in opened:
+        os.close(fd)
+    assert len(opened) == 1 and target.read_bytes() == b"old"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["map.npz"]
