@@ -23,7 +23,7 @@ from typing import Callable, Iterable
 
 import numpy as np
 
-from reloc.mapping.fusion import FusionParams, PlaneAccumulator
+from reloc.mapping.fusion import FusionParams, PlaneAccumulator, plane_basis, plane_cells
 from reloc.mapping.plane_map import PlaneMap
 from reloc.planeset import PlaneSet
 from reloc.transforms import check_transform, invert, rotation_angle_rad
@@ -274,20 +274,12 @@ def _offset_variance(cov: np.ndarray, point: np.ndarray) -> float:
     return float(v @ cov @ v)
 
 
-def _plane_basis(n: np.ndarray) -> np.ndarray:
-    """(3, 2): two unit vectors spanning the plane with normal ``n``."""
-    u = np.array([0.0, n[2], -n[1]]) if abs(n[0]) < 0.9 else np.array([-n[2], 0.0, n[0]])  # n x e_x, or n x e_y
-    u /= np.linalg.norm(u)
-    v = np.array([n[1] * u[2] - n[2] * u[1], n[2] * u[0] - n[0] * u[2], n[0] * u[1] - n[1] * u[0]])
-    return np.stack([u, v], axis=1)
-
-
 _NEIGHBOURS = np.array([a * 4_194_304 + b for a in (-1, 0, 1) for b in (-1, 0, 1)], dtype=np.int64)
 
 
-def _plane_cells(points: np.ndarray, basis: np.ndarray, cell: float) -> np.ndarray:
-    """Keys of the ``cell`` squares of a plane (``basis`` from :func:`_plane_basis`) that ``points`` project into."""
-    ij = np.floor(points @ basis / cell).astype(np.int64)
+def _cell_keys(points: np.ndarray, basis, cell: float) -> np.ndarray:
+    """One int64 key per point for the plane cell (:func:`~reloc.mapping.fusion.plane_cells`) it projects into."""
+    ij = plane_cells(points, basis, cell)
     return ij[:, 0] * 4_194_304 + ij[:, 1]
 
 
@@ -334,11 +326,11 @@ def odometry_consistent_frames(plane_sets: list[PlaneSet], T_odom_cams, params: 
             for c in near[np.argsort(np.abs(off[near]), kind="stable")]:
                 b = int(big[c])
                 if b not in cells:
-                    basis = _plane_basis(newest.normals[b])
-                    own = _plane_cells(newest.samples_of(b).astype(np.float64), basis, _PARTNER_CELL_M)
+                    basis = plane_basis(newest.normals[b])
+                    own = _cell_keys(newest.samples_of(b).astype(np.float64), basis, _PARTNER_CELL_M)
                     cells[b] = (basis, np.unique((own[:, None] + _NEIGHBOURS[None, :]).ravel()))
                 basis, occupied = cells[b]
-                keys = _plane_cells(samples, basis, _PARTNER_CELL_M)
+                keys = _cell_keys(samples, basis, _PARTNER_CELL_M)
                 at = np.minimum(np.searchsorted(occupied, keys), len(occupied) - 1)
                 if len(keys) and len(occupied) and np.mean(occupied[at] == keys) >= _PARTNER_MIN_OVERLAP:
                     i = int(c)

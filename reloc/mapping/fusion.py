@@ -104,17 +104,26 @@ def plane_fit_from_stats(
     return normals, offsets, c, covs
 
 
+def plane_basis(normal: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Two unit vectors ``u = n x e_x`` (``n x e_y`` for a normal near x) and ``v = n x u`` spanning the plane."""
+    n = np.asarray(normal, dtype=np.float64)
+    u = np.array([0.0, n[2], -n[1]]) if abs(n[0]) < 0.9 else np.array([-n[2], 0.0, n[0]])
+    u /= np.linalg.norm(u)
+    return u, np.array([n[1] * u[2] - n[2] * u[1], n[2] * u[0] - n[0] * u[2], n[0] * u[1] - n[1] * u[0]])
+
+
+def plane_cells(points: np.ndarray, basis: tuple[np.ndarray, np.ndarray], cell_m: float) -> np.ndarray:
+    """(M, 2) int64: the ``cell_m`` square of the plane spanned by ``basis`` (:func:`plane_basis`) that each of
+    ``points`` (M, 3) projects into."""
+    u, v = basis
+    return np.floor(np.stack([points @ u, points @ v], axis=1) / cell_m).astype(np.int64)
+
+
 def patch_area(points: np.ndarray, normal: np.ndarray, patch_m: float) -> float:
     """Area (m^2) of the ``patch_m`` x ``patch_m`` cells of the plane occupied by ``points`` (M, 3)."""
     if len(points) == 0:
         return 0.0
-    n = np.asarray(normal, dtype=np.float64)
-    helper = np.array([1.0, 0.0, 0.0]) if abs(n[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
-    u = np.cross(n, helper)
-    u /= np.linalg.norm(u)
-    v = np.cross(n, u)
-    uv = np.floor(np.stack([points @ u, points @ v], axis=1) / patch_m).astype(np.int64)
-    return float(len(np.unique(uv, axis=0)) * patch_m**2)
+    return float(len(np.unique(plane_cells(points, plane_basis(normal), patch_m), axis=0)) * patch_m**2)
 
 
 def _information(cov: np.ndarray) -> np.ndarray | None:
