@@ -348,6 +348,16 @@ class PtyEndpoint:
         except BlockingIOError:
             return b""
 
+    def pending(self) -> int:
+        """Bytes written and not yet read by the host (the slave's input queue; 0 once closed)."""
+        import fcntl
+        import struct
+        import termios
+
+        if self._closed:
+            return 0
+        return struct.unpack("i", fcntl.ioctl(self.slave, termios.FIONREAD, b"\0\0\0\0"))[0]
+
     def write(self, data: bytes, timeout_s: float) -> bool:
         """Write all of ``data`` within ``timeout_s``; False (rest dropped) when the host does not read."""
         view = memoryview(data)
@@ -640,7 +650,7 @@ class McuSimulator:
         self.encoder = StreamEncoder()
         self.state = McuState.BOOT
         self.counters = {
-            "odometry_sent": 0, "heartbeats_sent": 0, "requests_sent": 0, "request_retransmissions": 0,
+            "odometry_sent": 0, "heartbeats_sent": 0, "bytes_unread_at_stop": 0, "requests_sent": 0, "request_retransmissions": 0,
             "requests_acked": 0, "requests_failed": 0, "requests_unanswered": 0, "poses_received": 0,
             "poses_ok": 0, "poses_bad": 0, "poses_rejected": 0, "poses_unexpected": 0, "poses_unsynced": 0,
             "host_heartbeats": 0, "host_status": 0, "acks_received": 0, "write_failures": 0, "silent_frames": 0,
@@ -683,12 +693,37 @@ class McuSimulator:
         self._thread.start()
         return self
 
-    def stop(self, timeout_s: float = 2.0) -> None:
+    def stop(self, timeout_s: float = 2.0, drain_s: float = 1.0) -> None:
+        """Stop sending; then, before closing the endpoint, give the host up to ``drain_s`` to read what is still on
+        the line (a pseudo-terminal drops unread bytes when it closes, so a stop would otherwise lose the last
+        messages unseen). The wait ends early once the host stops reading. :meth:`unplug` does not wait."""
         self._stop.set()
         if self._thread is not None:
             self._thread.join(timeout_s)
         if self.close_endpoint:
+            pending = getattr(self.endpoint, "pending", None)
+            if pending is not None:
+                self._drain(pending, drain_s)
+                self.counters["bytes_unread_at_stop"] = pending()
             self.endpoint.close()
+
+    @staticmethod
+    def _drain(pending, drain_s: float, stalled_s: float = 0.25) -> None:
+        """Wait until ``pending()`` has read 0 a few times in a row (the kernel moves written bytes to the reader's
+        queue a moment after the write, so one 0 proves nothing), it stops changing for ``stalled_s``, or
+        ``drain_s`` has passed."""
+        start = time.monotonic()
+        last, last_change, zeros = -1, start, 0
+        while (now := time.monotonic()) - start < drain_s:
+            left = pending()
+            zeros = zeros + 1 if left == 0 else 0
+            if zeros >= 3:
+                return
+            if left != last:
+                last, last_change = left, now
+            elif now - last_change >= stalled_s:
+                return
+            time.sleep(0.005)
 
     def __enter__(self) -> "McuSimulator":
         return self.start()

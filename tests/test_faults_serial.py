@@ -108,9 +108,10 @@ def test_a_flooding_firmware_is_bounded_and_the_loop_keeps_running(tmp_path, liv
     # The flood arrived (far more than the 50 Hz a firmware sends), and the host kept up or dropped and counted.
     sent = mcu.counters["odometry_sent"]
     assert stats["odometry"] > 1000 and stats["odometry"] <= sent
-    # What did not arrive intact is counted: lost by sequence number, or bad (a write cut short by the full line);
-    # only the last few written as the pty closed can vanish with it unseen (no later frame reveals the gap).
-    assert stats["odometry"] + stats["frames_lost"] + stats["frames_bad"] >= sent - 5
+    # What did not arrive intact is counted: lost by sequence number, or bad (a write cut short by the full line).
+    # The simulator's stop lets the host read what is still on the line before the pty closes, so nothing vanishes
+    # unseen at the end (before it did, a loaded CI machine once found 6 of 6,495 missing).
+    assert stats["odometry"] + stats["frames_lost"] + stats["frames_bad"] >= sent
     assert bridge._events.qsize() <= 64 and len(bridge._odo) <= 256  # memory bounded
     assert summary.odometry["used"].get("bridge", 0) > 0
 

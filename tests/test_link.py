@@ -6,6 +6,7 @@ Waits are bounded polls (``wait_until``); nothing asserts a wall-clock duration.
 
 from __future__ import annotations
 
+import threading
 import time
 
 import numpy as np
@@ -212,6 +213,41 @@ def test_write_timeout_is_counted_and_not_fatal(tmp_path):
             assert link.alive and link.connected
     finally:
         ep.close()
+
+
+def test_stopping_the_simulator_lets_the_host_read_what_is_on_the_line(tmp_path):
+    # A pseudo-terminal discards unread bytes when it closes; stop() waits for a reader that is slow but reading.
+    sim = McuSimulator(PtyEndpoint(tmp_path / "tty"), odom_rate_hz=1.0, heartbeat_period_s=100.0)
+    payload = bytes(range(256)) * 12  # 3,072 bytes: fits in the pty's buffer, so the write needs no reader
+    assert sim.endpoint.write(payload, 1.0)
+    assert wait_until(lambda: sim.endpoint.pending() == len(payload))
+    got = bytearray()
+
+    def slow_host():
+        with open(tmp_path / "tty", "rb", buffering=0) as port:
+            while len(got) < len(payload):
+                time.sleep(0.03)
+                try:
+                    chunk = port.read(256)
+                except OSError:  # the other side closed
+                    return
+                if not chunk:
+                    return
+                got.extend(chunk)
+
+    host = threading.Thread(target=slow_host)
+    host.start()
+    sim.stop()  # never started: only the drain and the close
+    host.join(5.0)
+    assert bytes(got) == payload and sim.counters["bytes_unread_at_stop"] == 0
+
+
+def test_stopping_the_simulator_does_not_wait_for_a_host_that_never_reads(tmp_path):
+    sim = McuSimulator(PtyEndpoint(tmp_path / "tty"))
+    assert sim.endpoint.write(b"x" * 1000, 1.0)
+    assert wait_until(lambda: sim.endpoint.pending() == 1000)
+    sim.stop()  # gives up once the line stops emptying (0.25 s), and counts what was left
+    assert sim.counters["bytes_unread_at_stop"] == 1000
 
 
 def test_bridge_rejects_bad_input():
