@@ -56,6 +56,7 @@ __all__ = [
     "intrinsics_from_img_frame",
     "intrinsics_from_calibration",
     "rotation_cam_imu",
+    "stereo_noise_law",
     "gravity_cam_from_accel",
     "accel_samples",
     "frame_from_img_frame",
@@ -131,6 +132,27 @@ def _intrinsics_from_K(K: np.ndarray, width: int, height: int, source: str) -> I
         raise ValueError(f"{source}: expected a finite 3x3 camera matrix, got {K.tolist()}")
     return Intrinsics(fx=float(K[0, 0]), fy=float(K[1, 1]), cx=float(K[0, 2]), cy=float(K[1, 2]),
                       width=int(width), height=int(height), depth_scale=DEPTH_SCALE_MM)
+
+
+#: Disparity noise (pixels, one sigma) with subpixel disparity: the simulator's OAK-D class model
+#: (``sim.noise``, stereo); without subpixel, integer disparities: the quantization's 1 / sqrt(12).
+SUBPIXEL_DISPARITY_SIGMA_PX = 0.08
+INTEGER_DISPARITY_SIGMA_PX = 0.29
+
+
+def stereo_noise_law(calibration, focal_px: float, subpixel: bool = True) -> tuple[str, float]:
+    """``("stereo", c)`` with ``sigma_z = c z^2``, ``c = sigma_disparity / (f b)``: the depth noise the extraction
+    should assume for a stereo pair of baseline ``b`` (``calibration.getBaselineDistance()``, centimetres) seen at
+    focal length ``focal_px`` (pixels, the depth output's). Raises ValueError for a baseline or focal length that is
+    not positive and finite."""
+    baseline_m = float(calibration.getBaselineDistance()) / 100.0
+    f = abs(float(focal_px))
+    if not (np.isfinite(baseline_m) and baseline_m > 0):
+        raise ValueError(f"calibration: stereo baseline {baseline_m * 100:g} cm, expected a positive distance")
+    if not (np.isfinite(f) and f > 0):
+        raise ValueError(f"focal_px: expected a positive focal length, got {focal_px!r}")
+    sigma_px = SUBPIXEL_DISPARITY_SIGMA_PX if subpixel else INTEGER_DISPARITY_SIGMA_PX
+    return "stereo", sigma_px / (f * baseline_m)
 
 
 def rotation_cam_imu(calibration, socket, rectification: np.ndarray | None = None) -> np.ndarray:
@@ -399,6 +421,7 @@ class OakSource(FrameSource):
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
         self._intrinsics: Intrinsics | None = None
+        self._calibration = None
         self._ready = threading.Event()
         self._assembler = FrameAssembler(gravity_tau_s=self.gravity_tau_s)
 
@@ -421,6 +444,16 @@ class OakSource(FrameSource):
     @property
     def rate_hz(self) -> float:
         return self.settings["fps"]
+
+    def noise_law(self) -> tuple[str, float] | None:
+        """The stereo noise law from the device's baseline and the depth output's focal length (waits for the first
+        frame, as :attr:`intrinsics` does); None when the calibration has no usable baseline."""
+        fx = self.intrinsics.fx
+        try:
+            return stereo_noise_law(self._calibration, fx, self.settings["subpixel"])
+        except (AttributeError, RuntimeError, ValueError) as exc:
+            self.stats.event(f"noise law not known from the calibration ({exc}); the config's applies")
+            return None
 
     def info(self) -> dict:
         return {**super().info(), "device_id": self.device_id, **self.settings}
@@ -541,6 +574,7 @@ class OakSource(FrameSource):
         imu_q = None
         R_cam_imu = None
         calibration = device.readCalibration()
+        self._calibration = calibration
         if s["imu"] and device.getConnectedIMU() not in ("NONE", ""):
             try:
                 R_cam_imu = rotation_cam_imu(calibration, socket)

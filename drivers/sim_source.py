@@ -46,6 +46,9 @@ class SimSource(FrameSource):
     def intrinsics(self) -> Intrinsics:
         return self.camera.intrinsics
 
+    def noise_law(self) -> tuple[str, float] | None:
+        return self.camera.noise.extraction_law(self.camera.intrinsics.fx)
+
     @property
     def rate_hz(self) -> float:
         return self.rate if isinstance(self.rate, float) else self.camera.rate_hz

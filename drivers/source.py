@@ -60,6 +60,12 @@ class FrameSource(ABC):
     def intrinsics(self) -> Intrinsics:
         """Intrinsics of every frame this source yields."""
 
+    def noise_law(self) -> tuple[str, float] | None:
+        """``(noise_model, noise_coeff)`` of this camera's depth noise as the extraction takes it (see
+        :func:`reloc.extraction.params.noise_sigma`), or None when the source does not know it (the config's
+        ``extraction.noise_model`` / ``noise_coeff`` then apply)."""
+        return None
+
     @property
     def rate_hz(self) -> float | None:
         """Nominal frame rate, or None when unknown."""

@@ -62,6 +62,18 @@ class NoiseModel:
             if not 0 <= v <= 1:
                 raise ValueError(f"NoiseModel.{f}: expected a probability in [0, 1], got {v}")
 
+    def extraction_law(self, focal_px: float) -> tuple[str, float] | None:
+        """``(noise_model, noise_coeff)`` of the extraction's noise law for this sensor at focal length
+        ``focal_px`` (:mod:`reloc.extraction.params`): kinect ``kinect_coeff z^2``; stereo ``sigma_disp_px / (f b)
+        z^2``; ToF ``~ b z`` with its constant term folded in at 2 m. None for the noise-free model."""
+        if self.name == "kinect":
+            return "kinect", float(self.kinect_coeff)
+        if self.name == "stereo":
+            return "stereo", float(self.sigma_disp_px / (abs(focal_px) * self.baseline_m))
+        if self.name == "tof":
+            return "tof", float(self.tof_b + self.tof_a_m / 2.0)
+        return None
+
     # -- the error model ------------------------------------------------------------------------------------------
     def radius_map(self, intrinsics: Intrinsics) -> np.ndarray:
         """(H, W) distance of each pixel from the principal point, 1 at the farthest image corner."""

@@ -28,6 +28,7 @@ from drivers.oak import (  # noqa: E402
     pump,
     rotation_cam_imu,
     stamp_ns_from_timedelta,
+    stereo_noise_law,
 )
 from drivers.source import check_frame_contract  # noqa: E402
 from reloc.transforms import rotation_from_axis_angle  # noqa: E402
@@ -108,6 +109,30 @@ def test_intrinsics_fall_back_to_calibration():
     assert k.fx == pytest.approx(400.0) and k.fy == pytest.approx(400.5)
     with pytest.raises(ValueError, match=r"img: no valid ImgTransformation for its 640x400 size and no calibration"):
         intrinsics_from_img_frame(img)
+
+
+def test_stereo_noise_law_from_the_calibrations_baseline():
+    calib = dai.CalibrationHandler()
+    for socket in (dai.CameraBoardSocket.CAM_B, dai.CameraBoardSocket.CAM_C):
+        calib.setCameraIntrinsics(socket, K_FULL, 1280, 800)
+    # OAK-D: the right camera 7.5 cm from the left (depthai's units are centimetres).
+    calib.setCameraExtrinsics(dai.CameraBoardSocket.CAM_B, dai.CameraBoardSocket.CAM_C, np.eye(3).tolist(),
+                              [-7.5, 0.0, 0.0], [-7.5, 0.0, 0.0])
+    model, c = stereo_noise_law(calib, 400.0)  # 640x400 output: f = 400 px
+    # sigma_z = sigma_d z^2 / (f b): 0.08 px of subpixel disparity noise, 2.4 mm at 1 m, 2.2 cm at 3 m.
+    assert model == "stereo" and c == pytest.approx(0.08 / (400.0 * 0.075))
+    assert stereo_noise_law(calib, -400.0)[1] == pytest.approx(c)  # a mirrored focal length is still a focal length
+    # Integer disparities: the quantization's 1 / sqrt(12) px.
+    assert stereo_noise_law(calib, 400.0, subpixel=False)[1] == pytest.approx(0.29 / (400.0 * 0.075))
+    with pytest.raises(ValueError, match="focal_px"):
+        stereo_noise_law(calib, 0.0)
+
+    class NoBaseline:  # what a calibration without stereo extrinsics would report, were it to answer at all
+        def getBaselineDistance(self):
+            return 0.0
+
+    with pytest.raises(ValueError, match="stereo baseline 0 cm"):
+        stereo_noise_law(NoBaseline(), 400.0)
 
 
 def _imu_calibration(R_cam_imu):

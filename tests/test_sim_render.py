@@ -211,3 +211,15 @@ def test_bad_input_is_named():
         render(make_scene("office"), SMALL, np.eye(3))
     with pytest.raises(ValueError, match="trajectory"):
         sim.simulate_frames("office", "teleport", 2, camera=SMALL)
+
+
+def test_each_noise_model_names_the_law_extraction_should_assume():
+    from sim.noise import make_noise
+
+    assert make_noise("kinect").extraction_law(525.0) == ("kinect", 1.425e-3)
+    model, c = make_noise("stereo").extraction_law(-400.0)  # the sign of a mirrored focal length does not matter
+    assert model == "stereo" and abs(c - 0.08 / (400.0 * 0.075)) < 1e-15
+    model, c = make_noise("tof").extraction_law(500.0)
+    # sigma = a + b z, folded into c z at 2 m: c = b + a / 2.
+    assert model == "tof" and abs(c - (2e-3 + 2e-3 / 2)) < 1e-15
+    assert make_noise("none").extraction_law(500.0) is None

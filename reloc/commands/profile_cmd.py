@@ -345,7 +345,14 @@ def profile(camera, map_spec, frames, window, mode, warmup_frames, size, json_pa
     from drivers.source import SourceError
     from reloc.atomic import atomic_write_text
     from reloc.config import config_as_dict, load_config
-    from reloc.live.factory import load_plane_map, make_extractor, make_relocalizer, make_submap_fuser, open_camera
+    from reloc.live.factory import (
+        load_plane_map,
+        make_extractor,
+        make_relocalizer,
+        make_submap_fuser,
+        open_camera,
+        with_camera_noise,
+    )
 
     cfg = load_config(config_path)
     k = window or cfg.mapping.submap_window_frames
@@ -355,15 +362,22 @@ def profile(camera, map_spec, frames, window, mode, warmup_frames, size, json_pa
         raise click.UsageError("--size applies to a simulated camera (--camera sim[:SCENE]) only")
     n_warm = warmup_frames if mode == "sequential" else 0
 
-    t0 = time.perf_counter()
-    map_planes, plane_map = load_plane_map(map_spec)
-    relocalizer = make_relocalizer(plane_map, cfg)
-    map_s = time.perf_counter() - t0
-    echo(f"map: {len(map_planes)} planes from {map_spec} ({map_s:.2f} s with its index)")
     try:
         source = open_camera(camera, cfg, rate="fast", n_frames=frames + n_warm, **kwargs)
     except SourceError as exc:
         raise click.ClickException(str(exc)) from None
+    try:
+        cfg, note = with_camera_noise(cfg, source)
+        if note:
+            echo(note)
+        t0 = time.perf_counter()
+        map_planes, plane_map = load_plane_map(map_spec)
+        relocalizer = make_relocalizer(plane_map, cfg)
+        map_s = time.perf_counter() - t0
+    except BaseException:
+        source.close()
+        raise
+    echo(f"map: {len(map_planes)} planes from {map_spec} ({map_s:.2f} s with its index)")
     profiler = Profiler(window=max(8192, frames + 1), trace_capacity=(64 * frames + 1024) if trace_path else 0)
     run: dict = {"mode": mode, "window_frames": k}
     try:

@@ -99,15 +99,10 @@ def extraction_for_sensor(spec: EvalSpec, extraction=None):
     from reloc.extraction import ExtractionParams
 
     params = extraction if extraction is not None else ExtractionParams()
-    noise = make_noise(spec.noise)
-    if noise.name == "kinect":
-        return _replace(params, noise_model="kinect", noise_coeff=noise.kinect_coeff)
-    if noise.name == "stereo":
-        fx = abs(resolve_intrinsics(spec.camera, spec.width, spec.height).fx)
-        return _replace(params, noise_model="stereo", noise_coeff=noise.sigma_disp_px / (fx * noise.baseline_m))
-    if noise.name == "tof":
-        return _replace(params, noise_model="tof", noise_coeff=noise.tof_b + noise.tof_a_m / 2.0)
-    return params
+    law = make_noise(spec.noise).extraction_law(resolve_intrinsics(spec.camera, spec.width, spec.height).fx)
+    if law is None:
+        return params
+    return _replace(params, noise_model=law[0], noise_coeff=law[1])
 
 
 def make_plane_source(kind: str, scene, *, extraction=None) -> Callable:

@@ -55,6 +55,7 @@ def run(camera, map_spec, serial_url, frames, duration_s, summary_path, config_p
         make_relocalizer,
         make_submap_fuser,
         open_camera,
+        with_camera_noise,
     )
     from reloc.live.loop import LiveLoop
     from reloc.live.params import LiveParams
@@ -70,7 +71,6 @@ def run(camera, map_spec, serial_url, frames, duration_s, summary_path, config_p
         raise click.UsageError("--follow-firmware needs --camera sim[:SCENE] and a serial link (--serial)")
     map_planes, plane_map = load_plane_map(map_spec)
     echo(f"map: {len(map_planes)} planes from {map_spec}")
-    relocalizer = make_relocalizer(plane_map, cfg)
     bridge = source = None
     try:
         if url:
@@ -91,6 +91,10 @@ def run(camera, map_spec, serial_url, frames, duration_s, summary_path, config_p
                 source = open_camera(camera, cfg, rate=rate, n_frames=frames)
             except SourceError as exc:  # no device, device lost: the message says what to do
                 raise click.ClickException(str(exc)) from None
+        cfg, note = with_camera_noise(cfg, source)
+        if note:
+            echo(note)
+        relocalizer = make_relocalizer(plane_map, cfg)
         extract = make_extractor(cfg, planes=planes, scene=getattr(source, "scene", None))
         _warm_up(extract, source)
         profiler = Profiler(trace_capacity=200_000 if trace_path else 0)

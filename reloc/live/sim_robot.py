@@ -65,6 +65,9 @@ class FirmwareSyncedSimSource(FrameSource):
     def intrinsics(self) -> Intrinsics:
         return self._intrinsics
 
+    def noise_law(self) -> tuple[str, float] | None:
+        return self.noise.extraction_law(self._intrinsics.fx)
+
     @property
     def rate_hz(self) -> float:
         return self._rate
