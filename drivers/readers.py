@@ -38,6 +38,7 @@ turn, and the turn itself agrees with the ground truth to 5.2 degrees on average
 from __future__ import annotations
 
 import json
+import math
 import os
 import re
 import xml.etree.ElementTree as ET
@@ -59,6 +60,8 @@ __all__ = [
     "read_stamped_poses",
     "parse_stamp_ns",
     "gravity_from_kinect_accel",
+    "read_noise_law",
+    "noise_law_entry",
     "SEVEN_SCENES_INTRINSICS",
     "NOMINAL_RATE_HZ",
 ]
@@ -380,6 +383,42 @@ def _open_single_png(png: Path) -> Sequence:
 
 
 # --------------------------------------------------------------------------------------------------- files
+
+
+_NOISE_LAW_FILES = ("recording.json", "sim.json")
+_NOISE_MODELS = ("kinect", "tof", "stereo", "constant")
+
+
+def noise_law_entry(law: "tuple[str, float] | None") -> "dict | None":
+    """The ``noise_law`` entry of ``recording.json`` / ``sim.json`` for ``(noise_model, noise_coeff)``."""
+    return None if law is None else {"model": str(law[0]), "coeff": float(law[1])}
+
+
+def read_noise_law(path: "str | os.PathLike") -> "tuple[str, float] | None":
+    """``(noise_model, noise_coeff)`` stored by ``reloc record`` (``recording.json``) or ``reloc sim`` (``sim.json``)
+    in the sequence folder ``path`` (or the folder of a file), or None when neither holds one. A malformed entry
+    raises ValueError naming the file."""
+    root = Path(path)
+    root = root if root.is_dir() else root.parent
+    for name in _NOISE_LAW_FILES:
+        f = root / name
+        if not f.is_file():
+            continue
+        try:
+            meta = json.loads(f.read_text(encoding="utf-8"))
+        except (OSError, UnicodeDecodeError, ValueError) as exc:
+            raise ValueError(f"{f}: not readable JSON ({exc})") from None
+        entry = meta.get("noise_law") if isinstance(meta, dict) else None
+        if entry is None:
+            continue
+        model = entry.get("model") if isinstance(entry, dict) else None
+        coeff = entry.get("coeff") if isinstance(entry, dict) else None
+        if model not in _NOISE_MODELS or isinstance(coeff, bool) or not isinstance(coeff, (int, float)) or not (
+                math.isfinite(coeff) and coeff > 0):
+            raise ValueError(f"{f}: noise_law {entry!r}, expected {{\"model\": one of {', '.join(_NOISE_MODELS)}, "
+                             "\"coeff\": a positive number}")
+        return model, float(coeff)
+    return None
 
 
 def read_intrinsics_yaml(path: Path) -> Intrinsics:

@@ -31,6 +31,7 @@ from reloc.camera import DepthFrame, Intrinsics
 from reloc.transforms import tum_from_transform
 
 from drivers.depth_png import write_depth_png, write_label_png
+from drivers.readers import noise_law_entry
 
 __all__ = ["Recorder", "RecordSummary", "record", "stamp_text"]
 
@@ -222,7 +223,9 @@ def record(source, out_dir: str | os.PathLike, *, n_frames: int | None = None, d
 
         bar = tqdm(total=n_frames, unit="frame", desc="record", leave=False)
     t0 = time.monotonic()
-    with Recorder(out_dir, overwrite=overwrite, depth_scale=depth_scale, metadata={"source": source.info()}) as rec:
+    # The camera's noise law goes with the recording, so that maps and queries built from it are extracted with it.
+    meta = {"source": source.info(), "noise_law": noise_law_entry(source.noise_law())}
+    with Recorder(out_dir, overwrite=overwrite, depth_scale=depth_scale, metadata=meta) as rec:
         for name, text in (extra_files or {}).items():
             atomic_write_text(rec.out / name, text)
         try:

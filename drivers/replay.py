@@ -13,7 +13,7 @@ from typing import Iterator
 
 from reloc.camera import DepthFrame, Intrinsics
 
-from drivers.readers import Sequence, open_sequence
+from drivers.readers import Sequence, open_sequence, read_noise_law
 from drivers.source import FrameSource, Pacer, parse_rate
 
 __all__ = ["ReplaySource"]
@@ -45,6 +45,10 @@ class ReplaySource(FrameSource):
     @property
     def intrinsics(self) -> Intrinsics:
         return self.sequence.intrinsics
+
+    def noise_law(self) -> tuple[str, float] | None:
+        """The law the recording stored (``recording.json`` of ``reloc record``, ``sim.json`` of ``reloc sim``)."""
+        return read_noise_law(self.sequence.path)
 
     @property
     def rate_hz(self) -> float | None:

@@ -18,7 +18,8 @@ from typing import Annotated, Any, Literal
 import yaml
 from pydantic import BaseModel, ConfigDict, Field, Strict, ValidationError, model_validator
 
-__all__ = ["Config", "ConfigError", "load_config", "config_from_dict", "dump_config", "default_config"]
+__all__ = ["Config", "ConfigError", "load_config", "config_from_dict", "dump_config", "default_config",
+           "with_noise_law"]
 
 # Sequences come from YAML lists; they are accepted as lists and stored as tuples (not a correction of a value).
 FloatSeq = Annotated[tuple[float, ...], Strict(False)]
@@ -646,3 +647,27 @@ def dump_config(cfg: Config | None = None, *, comments: bool = True) -> str:
             value = value.removesuffix("...").strip()
             lines.append(f"  {name}: {value}  # {field.description}")
     return "\n".join(lines) + "\n"
+
+
+def with_noise_law(cfg: Config, law: "tuple[str, float] | None", origin: str) -> "tuple[Config, str | None]":
+    """``(cfg, note)``: ``cfg`` with ``law`` (``(noise_model, noise_coeff)``, known from ``origin``: "the camera", "the
+    recording") as its extraction noise law, unless the config names a law itself (``extraction.noise_model`` or
+    ``noise_coeff`` given) or ``law`` is None; then ``cfg`` unchanged and ``note`` None.
+
+    Extraction's planarity tests, weights and merging thresholds, the odometry check of submaps and the matcher's
+    decision offsets all scale with this law. The default (Kinect, 1.425e-3 z^2) is 1.7x too small for an OAK-D at
+    640x400: its stereo planes would be fitted as if they were twice as certain as they are.
+    """
+    ex = cfg.extraction
+    if law is None or {"noise_model", "noise_coeff"} & ex.model_fields_set:
+        return cfg, None
+    model, coeff = law
+    if (model, coeff) == (ex.noise_model, ex.noise_coeff):
+        return cfg, None
+    from reloc.extraction.params import noise_law_code
+
+    section = ex.model_copy(update={"noise_model": model, "noise_coeff": float(coeff)})
+    text = f"{float(coeff):.3g}" + {0: "", 1: " z", 2: " z^2"}[noise_law_code(model)]
+    return cfg.model_copy(update={"extraction": section}), (
+        f"depth noise: {model}, sigma = {text} m, from {origin} (extraction.noise_model / noise_coeff in the config "
+        "override it)")

@@ -34,6 +34,7 @@ def sim(scene, trajectory, n_frames, seed, scene_seed, noise, camera, width, hei
 
     from reloc._numba import warm_up
     from sim import make_camera
+    from drivers.readers import noise_law_entry
     from sim.writer import write_sequence
 
     if (width is None) != (height is None):
@@ -44,7 +45,8 @@ def sim(scene, trajectory, n_frames, seed, scene_seed, noise, camera, width, hei
                       rate_hz=rate_hz, width=width, height=height)
     t_traj = time.perf_counter() - t0
     meta = {"trajectory": trajectory, "seed": seed, "noise": noise, "noise_model": _noise_dict(cam.noise),
-            "camera": camera, "people": people, "rate_hz": rate_hz, "n_frames": len(cam)}
+            "camera": camera, "people": people, "rate_hz": rate_hz, "n_frames": len(cam),
+            "noise_law": noise_law_entry(cam.noise.extraction_law(cam.intrinsics.fx))}
     s = write_sequence(iter(cam), cam.scene, out_dir, overwrite=overwrite, metadata=meta,
                        progress=len(cam) >= 50 and sys.stderr.isatty(), total=len(cam))
     fps = s.n_frames / max(s.seconds, 1e-9)

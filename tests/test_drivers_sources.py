@@ -240,6 +240,34 @@ def test_record_then_replay_round_trip(tmp_path, pose_source, pose_file):
         assert np.isnan(g.depth_m[0, :3]).all()
 
 
+def test_a_recording_keeps_the_cameras_noise_law_and_its_replay_reports_it(tmp_path):
+    from drivers.readers import read_noise_law
+    from drivers.sim_source import SimSource
+
+    with SimSource("office", n_frames=3, rate="fast") as src:  # the OAK-D class stereo camera
+        law = src.noise_law()
+        record(src, tmp_path / "rec")
+    assert law[0] == "stereo" and law[1] > 0
+    meta = json.loads((tmp_path / "rec" / "recording.json").read_text())
+    assert meta["noise_law"] == {"model": "stereo", "coeff": law[1]}
+    assert read_noise_law(tmp_path / "rec") == law
+    assert ReplaySource(tmp_path / "rec").noise_law() == law
+    # A source that does not know its law records none, and its replay knows none either.
+    with ListSource(_frames(2)) as src:
+        record(src, tmp_path / "plain")
+    assert json.loads((tmp_path / "plain" / "recording.json").read_text())["noise_law"] is None
+    assert ReplaySource(tmp_path / "plain").noise_law() is None
+    # A damaged entry is an error that names the file and what was expected.
+    meta["noise_law"] = {"model": "sonar", "coeff": 0.01}
+    (tmp_path / "rec" / "recording.json").write_text(json.dumps(meta))
+    with pytest.raises(ValueError, match=r"recording\.json: noise_law .*sonar.*expected"):
+        read_noise_law(tmp_path / "rec")
+    meta["noise_law"] = {"model": "tof", "coeff": -1.0}
+    (tmp_path / "rec" / "recording.json").write_text(json.dumps(meta))
+    with pytest.raises(ValueError, match="a positive number"):
+        read_noise_law(tmp_path / "rec")
+
+
 def test_record_stops_and_skips(tmp_path):
     frames = _frames(6)
     bad = frames[:3] + [frames[1]] + frames[3:]  # a frame out of order is skipped and counted

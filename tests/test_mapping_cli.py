@@ -99,3 +99,27 @@ def test_map_too_small_to_relocalize_in_says_why(office_sequence, tmp_path, caps
     # A map that can be used says nothing of the kind.
     assert main(["map", "build", str(office_sequence), "-o", str(tmp_path / "ok.npz"), "--quiet"]) == 0
     assert "note:" not in capsys.readouterr().err
+
+
+def test_a_sequences_stored_noise_law_is_used_unless_the_config_names_one(tmp_path, capsys):
+    # `reloc sim` stores the law of its camera in sim.json (stereo, sigma_d / (f b) z^2 for the OAK-D class
+    # camera); map build, locate and planes extract with it, and a map records the law it was built with.
+    seq = tmp_path / "stereo"
+    assert main(["sim", "living_room", "--noise", "stereo", "--camera", "oak-d", "--width", "320", "--height", "200",
+                 "--frames", "12", "--out", str(seq)]) == 0
+    stored = json.loads((seq / "sim.json").read_text())["noise_law"]
+    fx = float(__import__("yaml").safe_load((seq / "camera.yaml").read_text())["fx"])
+    assert stored["model"] == "stereo" and abs(stored["coeff"] - 0.08 / (fx * 0.075)) < 1e-12
+    capsys.readouterr()
+    assert main(["map", "build", str(seq), "-o", str(tmp_path / "m.npz")]) == 0
+    assert "depth noise: stereo" in capsys.readouterr().err
+    ex = load_map(tmp_path / "m.npz").meta["config"]["extraction"]
+    assert (ex["noise_model"], ex["noise_coeff"]) == ("stereo", stored["coeff"])
+    assert main(["planes", str(seq), "--frames", "0:2", "--out", str(tmp_path / "p.jsonl"), "--quiet"]) == 0
+    assert "noise_model: stereo" in (tmp_path / "p.config.yaml").read_text()
+    # A config that names a law keeps it.
+    cfg = tmp_path / "kinect.yaml"
+    cfg.write_text("extraction:\n  noise_model: kinect\n")
+    assert main(["map", "build", str(seq), "-o", str(tmp_path / "k.npz"), "--config", str(cfg), "--quiet"]) == 0
+    ex = load_map(tmp_path / "k.npz").meta["config"]["extraction"]
+    assert (ex["noise_model"], ex["noise_coeff"]) == ("kinect", 1.425e-3)

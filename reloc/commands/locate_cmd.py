@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import click
 
-from reloc.commands.map_cmd import SOURCES, config_sections, parse_frames, sequence_plane_source
+from reloc.commands.map_cmd import SOURCES, config_sections, parse_frames, sequence_config, sequence_plane_source
 
 
 @click.command("locate")
@@ -47,7 +47,7 @@ def locate(seq, map_path, out_path, frames_spec, window, stride, every, source, 
     from reloc.mapping import MappingParams, build_submap, load_map
     from reloc.matching import MatchingParams, Relocalizer
 
-    cfg = load_config(config_path)
+    cfg = sequence_config(load_config(config_path), seq, quiet)
     mapping = MappingParams.from_config(cfg)
     k = window or mapping.submap_window_frames
     plane_map = load_map(map_path)

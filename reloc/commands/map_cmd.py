@@ -29,6 +29,18 @@ def parse_frames(spec: str | None, n: int) -> range:
     return range(n)[i: i + 1 or None]
 
 
+def sequence_config(cfg, seq_path: str, quiet: bool = False):
+    """``cfg`` with the depth noise law the sequence at ``seq_path`` stored (``reloc record``, ``reloc sim``), unless
+    the config names one itself (:func:`reloc.config.with_noise_law`); says so on stderr unless ``quiet``."""
+    from drivers.readers import read_noise_law
+    from reloc.config import with_noise_law
+
+    cfg, note = with_noise_law(cfg, read_noise_law(seq_path), seq_path)
+    if note and not quiet:
+        click.echo(note, err=True)
+    return cfg
+
+
 def sequence_plane_source(seq_path: str, kind: str, cfg):
     """``frame -> PlaneSet`` for frames of the sequence at ``seq_path``: extraction with the config's parameters, or
     (``oracle``) the simulator's ground truth, for sequences written by ``reloc sim`` (their ``sim.json`` names the
@@ -97,8 +109,8 @@ def build(seq, out_path, frames_spec, source, config_path, quiet):
     from reloc.config import load_config
     from reloc.mapping import MappingParams, build_map, save_map
 
-    cfg = load_config(config_path)
     sequence = open_sequence(seq)
+    cfg = sequence_config(load_config(config_path), seq, quiet)
     idx = parse_frames(frames_spec, len(sequence))
     if not sequence.has_pose[list(idx)].any():
         raise click.ClickException(f"{seq}: no frame has a pose; a map needs posed frames (ground truth or odometry)")

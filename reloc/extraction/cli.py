@@ -90,8 +90,13 @@ def planes(input_path, frames_spec, config_path, out_path, quiet):
             n_ok = 1
         else:
             from drivers.readers import open_sequence
+            from reloc.commands.map_cmd import sequence_config
 
             seq = open_sequence(src)
+            own = sequence_config(cfg, str(src), quiet)
+            if own is not cfg:
+                cfg = own
+                extractor = PlaneExtractor(ExtractionParams.from_config(cfg))
             indices = parse_frames(frames_spec, len(seq))
             it = indices
             if not quiet:

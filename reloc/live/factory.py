@@ -84,30 +84,12 @@ def make_extractor(cfg, *, planes: str = "extract", scene=None) -> Callable[[Dep
 
 def with_camera_noise(cfg, source):
     """``(cfg, note)``: the config with the camera's own depth noise law (``source.noise_law()``: simulated cameras,
-    an OAK stereo pair from its calibration) as ``extraction.noise_model`` / ``noise_coeff``, unless the config sets
-    either of them itself or the source does not know its law (then ``cfg`` unchanged and ``note`` None).
+    an OAK stereo pair from its calibration, a replayed recording that stored it), see
+    :func:`reloc.config.with_noise_law`."""
+    from reloc.config import with_noise_law
 
-    Extraction's planarity tests, weights and merging thresholds, the odometry check of submaps and the matcher's
-    decision offsets all scale with this law; the default (Kinect, 1.425e-3 z^2) is 1.7x too small for an OAK-D at
-    640x400, which fits stereo planes as if they were twice as certain as they are.
-    """
-    ex = cfg.extraction
-    if {"noise_model", "noise_coeff"} & ex.model_fields_set:
-        return cfg, None
     law = source.noise_law() if callable(getattr(source, "noise_law", None)) else None
-    if law is None:
-        return cfg, None
-    model, coeff = law
-    if (model, coeff) == (ex.noise_model, ex.noise_coeff):
-        return cfg, None
-    from reloc.extraction.params import noise_law_code
-
-    section = ex.model_copy(update={"noise_model": model, "noise_coeff": coeff})
-    power = noise_law_code(model)
-    law = f"{coeff:.3g}" + {0: "", 1: " z", 2: " z^2"}[power]
-    return cfg.model_copy(update={"extraction": section}), (
-        f"depth noise: {model}, sigma = {law} m, from the camera (extraction.noise_model / noise_coeff in the config "
-        "override it)")
+    return with_noise_law(cfg, law, "the camera")
 
 
 def load_plane_map(spec: str) -> tuple[PlaneSet, Any]:
