@@ -245,7 +245,7 @@ def main(argv=None) -> int:
         ap.error("--frames must be >= 1 and --pool >= 3")
 
     from reloc.config import config_as_dict, load_config
-    from reloc.live.factory import load_plane_map
+    from reloc.live.factory import load_plane_map, with_camera_noise
 
     cfg = load_config(args.config)
     map_planes, plane_map = load_plane_map(f"sim:{args.scene}")
@@ -253,6 +253,9 @@ def main(argv=None) -> int:
     sim_src, pool = make_pool(args.scene, args.pool, args.width, args.height, args.seed, args.planes == "truth")
     print(f"pool: {len(pool)} frames {args.width}x{args.height} rendered in {time.perf_counter() - t0:.1f} s; "
           f"map: {len(map_planes)} planes", flush=True)
+    cfg, note = with_camera_noise(cfg, sim_src)  # as reloc run does
+    if note:
+        print(note, flush=True)
     runs = []
     runs.append(run_once("realtime", pool, sim_src.scene, args.frames, float(args.rate), cfg, plane_map, map_planes,
                          args.planes, status_every=30))

@@ -161,6 +161,9 @@ def _robot_camera(mcu, scene, T_base_cam, width: int, height: int, rate_hz: floa
         def rate_hz(self):
             return rate_hz
 
+        def noise_law(self):
+            return noise.extraction_law(intr.fx)
+
         def _frames(self):
             pacer = Pacer(rate_hz)
             seq = 0
@@ -196,7 +199,13 @@ def run_soak(n_frames: int, *, width: int = 160, height: int = 100, rate_hz: flo
     from firmware_bridge import HostBridge
     from firmware_bridge.mcu_sim import FaultInjector, McuSimulator, PlanarPath, PtyEndpoint
     from reloc.config import Config
-    from reloc.live.factory import load_plane_map, make_extractor, make_relocalizer, make_submap_fuser
+    from reloc.live.factory import (
+        load_plane_map,
+        make_extractor,
+        make_relocalizer,
+        make_submap_fuser,
+        with_camera_noise,
+    )
     from reloc.live.loop import THREAD_NAMES, LiveLoop
     from reloc.live.params import LiveParams
     from sim.scenes import make_scene
@@ -207,8 +216,6 @@ def run_soak(n_frames: int, *, width: int = 160, height: int = 100, rate_hz: flo
     T_base_cam = np.asarray(cfg.camera.T_base_cam, dtype=np.float64).reshape(4, 4)
     scene = make_scene(scene_name)
     map_planes, plane_map = load_plane_map(f"sim:{scene_name}")
-    relocalizer = make_relocalizer(plane_map, cfg)
-    extract = make_extractor(cfg, planes=planes, scene=scene)
     # A figure-eight through the living room along which the camera sees enough of the room most of the time.
     path = PlanarPath(center_m=(3.0, 1.8), amplitude_m=(1.5, 1.0), period_s=30.0)
 
@@ -220,6 +227,9 @@ def run_soak(n_frames: int, *, width: int = 160, height: int = 100, rate_hz: flo
     mcu.pose_checks = _Tally(maxlen=1000, mcu_counters=mcu.counters)
     bridge = HostBridge(link, reconnect_backoff_s=(0.05, 0.1, 0.2, 0.5), pose_rate_hz=10.0)
     camera = _robot_camera(mcu, scene, T_base_cam, width, height, rate_hz, seed)
+    cfg, _ = with_camera_noise(cfg, camera)  # as reloc run does: the camera's stereo law
+    relocalizer = make_relocalizer(plane_map, cfg)
+    extract = make_extractor(cfg, planes=planes, scene=scene)
     every = faults.camera_disconnect_every
     source = FaultySource(camera, drop_rate=faults.camera_drop_rate, invalid_rate=faults.camera_invalid_rate,
                           stall_rate=faults.camera_stall_rate, stall_s=faults.camera_stall_s,
