@@ -498,16 +498,16 @@ NOISE_CAMERAS = {"none": "kinect", "kinect": "kinect", "stereo": "oak-d", "tof":
 def ours_noise_params(noise: str, intrinsics) -> dict:
     """The noise law ours is told for a simulator noise model (``reloc.extraction`` noise_model / noise_coeff).
 
-    kinect: the sim's own law 1.425e-3 z^2. stereo: z^2 sigma_disp / (f b) with the sim's 0.08 px and 7.5 cm
-    baseline. tof: the sim's (2 + 2 z) mm (1 + 1.5 r^2) approximated by 3e-3 z (within 25 % over 1-5 m at the
-    centre; the edge term is not modelled). none: a constant 1 mm (the planarity floor of 1 cm decides anyway).
+    The simulator's own (``sim.noise.NoiseModel.extraction_law``, as the cameras report it to ``reloc run``): kinect
+    1.425e-3 z^2; stereo z^2 sigma_disp / (f b) with the sim's 0.08 px and 7.5 cm baseline; tof: the sim's
+    (2 + 2 z) mm (1 + 1.5 r^2) approximated by 3e-3 z (within 25 % over 1-5 m at the centre; the edge term is not
+    modelled). none: a constant 1 mm (the planarity floor of 1 cm decides).
     """
-    if noise == "kinect":
-        return {"noise_model": "kinect", "noise_coeff": 1.425e-3}
-    if noise == "stereo":
-        return {"noise_model": "stereo", "noise_coeff": 0.08 / (abs(intrinsics.fx) * 0.075)}
-    if noise == "tof":
-        return {"noise_model": "tof", "noise_coeff": 3e-3}
+    if noise in ("kinect", "stereo", "tof"):
+        from sim.noise import make_noise
+
+        model, coeff = make_noise(noise).extraction_law(intrinsics.fx)
+        return {"noise_model": model, "noise_coeff": coeff}
     if noise == "none":
         return {"noise_model": "constant", "noise_coeff": 1e-3}
     raise ValueError(f"noise: expected one of {sorted(NOISE_CAMERAS)}, got {noise!r}")
