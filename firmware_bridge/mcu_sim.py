@@ -356,7 +356,10 @@ class PtyEndpoint:
 
         if self._closed:
             return 0
-        return struct.unpack("i", fcntl.ioctl(self.slave, termios.FIONREAD, b"\0\0\0\0"))[0]
+        try:
+            return struct.unpack("i", fcntl.ioctl(self.slave, termios.FIONREAD, b"\0\0\0\0"))[0]
+        except OSError:  # the slave side is gone: nothing more will be read
+            return 0
 
     def write(self, data: bytes, timeout_s: float) -> bool:
         """Write all of ``data`` within ``timeout_s``; False (rest dropped) when the host does not read."""
@@ -650,7 +653,8 @@ class McuSimulator:
         self.encoder = StreamEncoder()
         self.state = McuState.BOOT
         self.counters = {
-            "odometry_sent": 0, "heartbeats_sent": 0, "bytes_unread_at_stop": 0, "requests_sent": 0, "request_retransmissions": 0,
+            "odometry_sent": 0, "heartbeats_sent": 0, "bytes_unread_at_stop": 0, "requests_sent": 0,
+            "request_retransmissions": 0,
             "requests_acked": 0, "requests_failed": 0, "requests_unanswered": 0, "poses_received": 0,
             "poses_ok": 0, "poses_bad": 0, "poses_rejected": 0, "poses_unexpected": 0, "poses_unsynced": 0,
             "host_heartbeats": 0, "host_status": 0, "acks_received": 0, "write_failures": 0, "silent_frames": 0,
