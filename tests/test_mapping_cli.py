@@ -115,6 +115,8 @@ def test_a_sequences_stored_noise_law_is_used_unless_the_config_names_one(tmp_pa
     assert "depth noise: stereo" in capsys.readouterr().err
     ex = load_map(tmp_path / "m.npz").meta["config"]["extraction"]
     assert (ex["noise_model"], ex["noise_coeff"]) == ("stereo", stored["coeff"])
+    assert main(["map", "info", str(tmp_path / "m.npz")]) == 0
+    assert f"depth_noise: stereo {stored['coeff']:.4g}" in capsys.readouterr().out
     assert main(["planes", str(seq), "--frames", "0:2", "--out", str(tmp_path / "p.jsonl"), "--quiet"]) == 0
     assert "noise_model: stereo" in (tmp_path / "p.config.yaml").read_text()
     # A config that names a law keeps it.

@@ -165,3 +165,8 @@ def info(map_path, as_json):
         click.echo(f"  {k}: {v}")
     for k in sorted(meta):
         click.echo(f"  {k}: {meta[k]}")
+    recorded = plane_map.meta.get("config")
+    ex = recorded.get("extraction") if isinstance(recorded, dict) else None
+    if isinstance(ex, dict) and isinstance(ex.get("noise_coeff"), (int, float)):
+        # The law its planes were extracted with (queries are best extracted with the same camera's law).
+        click.echo(f"  depth_noise: {ex.get('noise_model')} {ex['noise_coeff']:.4g}")
