@@ -6,6 +6,7 @@ import json
 
 import numpy as np
 import pytest
+import yaml
 
 import sim
 from reloc.cli import main
@@ -103,12 +104,13 @@ def test_map_too_small_to_relocalize_in_says_why(office_sequence, tmp_path, caps
 
 def test_a_sequences_stored_noise_law_is_used_unless_the_config_names_one(tmp_path, capsys):
     # `reloc sim` stores the law of its camera in sim.json (stereo, sigma_d / (f b) z^2 for the OAK-D class
-    # camera); map build, locate and planes extract with it, and a map records the law it was built with.
+    # camera); map build and planes extract with it (locate takes it the same way, sequence_config), and a map
+    # records the law it was built with.
     seq = tmp_path / "stereo"
     assert main(["sim", "living_room", "--noise", "stereo", "--camera", "oak-d", "--width", "320", "--height", "200",
                  "--frames", "12", "--out", str(seq)]) == 0
     stored = json.loads((seq / "sim.json").read_text())["noise_law"]
-    fx = float(__import__("yaml").safe_load((seq / "camera.yaml").read_text())["fx"])
+    fx = float(yaml.safe_load((seq / "camera.yaml").read_text())["fx"])
     assert stored["model"] == "stereo" and abs(stored["coeff"] - 0.08 / (fx * 0.075)) < 1e-12
     capsys.readouterr()
     assert main(["map", "build", str(seq), "-o", str(tmp_path / "m.npz")]) == 0
