@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import json
+
 import numpy as np
 
 from drivers.readers import open_sequence
@@ -38,6 +40,8 @@ def test_a_recording_of_a_simulated_sequence_keeps_its_ground_truth_files(tmp_pa
     assert main(["record", "--camera", f"replay:{src}", "--out", str(rec), "--frames", "2"]) == 0
     for name in ("planes.json", "sim.json"):
         assert (rec / name).read_text() == (src / name).read_text()
+    # The simulated camera's noise law (Kinect, reloc sim's default) goes from sim.json to the new recording.
+    assert json.loads((rec / "recording.json").read_text())["noise_law"] == {"model": "kinect", "coeff": 1.425e-3}
     assert open_sequence(rec).label_files  # and its label images
     planes = open_sequence(rec).scene_planes()
     assert planes and planes == open_sequence(src).scene_planes()
