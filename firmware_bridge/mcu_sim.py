@@ -649,6 +649,7 @@ class McuSimulator:
         )
         self.write_timeout_s = write_timeout_s
         self.close_endpoint = close_endpoint
+        self.drain_result: str | None = None  # how stop() ended its wait for the host: empty, stalled or timeout
         self.decoder = StreamDecoder()
         self.encoder = StreamEncoder()
         self.state = McuState.BOOT
@@ -707,27 +708,28 @@ class McuSimulator:
         if self.close_endpoint:
             pending = getattr(self.endpoint, "pending", None)
             if pending is not None:
-                self._drain(pending, drain_s)
+                self.drain_result = self._drain(pending, drain_s)
                 self.counters["bytes_unread_at_stop"] = pending()
             self.endpoint.close()
 
     @staticmethod
-    def _drain(pending, drain_s: float, stalled_s: float = 0.25) -> None:
+    def _drain(pending, drain_s: float, stalled_s: float = 0.25) -> str:
         """Wait until ``pending()`` has read 0 a few times in a row (the kernel moves written bytes to the reader's
-        queue a moment after the write, so one 0 proves nothing), it stops changing for ``stalled_s``, or
-        ``drain_s`` has passed."""
+        queue a moment after the write, so one 0 proves nothing): "empty"; until it stops changing for
+        ``stalled_s``: "stalled"; or until ``drain_s`` has passed: "timeout"."""
         start = time.monotonic()
         last, last_change, zeros = -1, start, 0
         while (now := time.monotonic()) - start < drain_s:
             left = pending()
             zeros = zeros + 1 if left == 0 else 0
             if zeros >= 3:
-                return
+                return "empty"
             if left != last:
                 last, last_change = left, now
             elif now - last_change >= stalled_s:
-                return
+                return "stalled"
             time.sleep(0.005)
+        return "timeout"
 
     def __enter__(self) -> "McuSimulator":
         return self.start()
