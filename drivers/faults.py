@@ -102,6 +102,9 @@ class FaultySource(FrameSource):
     def intrinsics(self) -> Intrinsics:
         return self.inner.intrinsics
 
+    def noise_law(self) -> tuple[str, float] | None:
+        return self.inner.noise_law()  # the faults drop and spoil frames; the camera's noise is its own
+
     @property
     def rate_hz(self) -> float | None:
         return self.inner.rate_hz

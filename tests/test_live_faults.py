@@ -60,6 +60,7 @@ def test_faults_at_stated_frames():
     assert [f.seq for f in frames] == [0, 1, 3, 4, 5, 6, 8, 9, 10, 11]
     assert [f.seq for f in frames if not np.any(f.depth_m > 0)] == [4]
     assert src.injected == {"dropped": [2, 7], "stalls": [5], "invalid": [4], "disconnects": []}
+    assert src.noise_law() == src.inner.noise_law() and src.noise_law()[0] == "stereo"  # the camera's, passed on
 
 
 def test_disconnect_then_reconnect_resumes_the_stream():
