@@ -19,8 +19,8 @@ from firmware_bridge.host import planar_transform
 from firmware_bridge.mcu_sim import PlanarPath
 from reloc.camera import DepthFrame
 from reloc.config import Config
-from reloc.live.factory import load_plane_map, make_relocalizer, make_submap_fuser
-from reloc.mapping import MappingParams, build_submap
+from reloc.live.factory import SubmapFuser, load_plane_map, make_relocalizer, make_submap_fuser
+from reloc.mapping import MappingParams
 from reloc.transforms import pose_error
 from sim.cameras import resolve_intrinsics
 from sim.ground_truth import visible_planes
@@ -71,8 +71,7 @@ def test_exact_odometry_relocalizes_the_soak_submap_exactly(soak_query):
 
 
 def _without_odometry_check():
-    params = replace(MappingParams.from_config(Config()), submap_check_sigmas=0.0)
-    return lambda plane_sets, T_odom_cams: build_submap(plane_sets, T_odom_cams, params)
+    return SubmapFuser(replace(MappingParams.from_config(Config()), submap_check_sigmas=0.0))
 
 
 def test_the_soak_false_relocalization_is_refused(soak_query):
@@ -81,10 +80,9 @@ def test_the_soak_false_relocalization_is_refused(soak_query):
     poses[-1] = planar_transform(-0.0082, -0.0086, math.radians(-0.45)) @ poses[-1]
     # The odometry check leaves older frames out (0.45 deg moves their planes' centroids, about 3 m away, by more
     # than 2 cm): what remains (4 planes) is refused, never answered 0.14 m off.
-    stats = {}
-    params = MappingParams.from_config(Config())
-    res, n, err = _locate(soak_query, poses, lambda s, T: build_submap(s, T, params, stats))
-    assert stats["frames_left_out"] >= 1 and res.status != "relocalized", (stats, res.reason)
+    fuse = SubmapFuser(MappingParams.from_config(Config()))
+    res, n, err = _locate(soak_query, poses, fuse)
+    assert fuse.stats["frames_left_out"] >= 1 and res.status != "relocalized", (fuse.stats, res.reason)
     assert err is None or (err[0] <= FALSE_M and err[1] <= FALSE_DEG), f"false relocalization {err}"
     # Without the check the three frames fuse into a displaced 5-plane submap; the matcher must refuse it.
     res, n, err = _locate(soak_query, poses, _without_odometry_check())

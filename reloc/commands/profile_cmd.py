@@ -374,13 +374,9 @@ def profile(camera, map_spec, frames, window, mode, warmup_frames, size, json_pa
         map_planes, plane_map = load_plane_map(map_spec)
         relocalizer = make_relocalizer(plane_map, cfg)
         map_s = time.perf_counter() - t0
-    except BaseException:
-        source.close()
-        raise
-    echo(f"map: {len(map_planes)} planes from {map_spec} ({map_s:.2f} s with its index)")
-    profiler = Profiler(window=max(8192, frames + 1), trace_capacity=(64 * frames + 1024) if trace_path else 0)
-    run: dict = {"mode": mode, "window_frames": k}
-    try:
+        echo(f"map: {len(map_planes)} planes from {map_spec} ({map_s:.2f} s with its index)")
+        profiler = Profiler(window=max(8192, frames + 1), trace_capacity=(64 * frames + 1024) if trace_path else 0)
+        run: dict = {"mode": mode, "window_frames": k}
         extract = make_extractor(cfg)
         compile_info = _compile(extract, source.intrinsics)
         profiler.note_compile(compile_info["seconds"])

@@ -88,8 +88,7 @@ def with_camera_noise(cfg, source):
     :func:`reloc.config.with_noise_law`."""
     from reloc.config import with_noise_law
 
-    law = source.noise_law() if callable(getattr(source, "noise_law", None)) else None
-    return with_noise_law(cfg, law, "the camera")
+    return with_noise_law(cfg, source.noise_law(), "the camera")
 
 
 def load_plane_map(spec: str) -> tuple[PlaneSet, Any]:

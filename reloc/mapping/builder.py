@@ -274,13 +274,14 @@ def _offset_variance(cov: np.ndarray, point: np.ndarray) -> float:
     return float(v @ cov @ v)
 
 
-_NEIGHBOURS = np.array([a * 4_194_304 + b for a in (-1, 0, 1) for b in (-1, 0, 1)], dtype=np.int64)
+_KEY_STRIDE = 1 << 22  # cell (i, j) -> i * stride + j: distinct while |j| < 2^21 cells (210 km of 0.1 m cells)
+_NEIGHBOURS = np.array([a * _KEY_STRIDE + b for a in (-1, 0, 1) for b in (-1, 0, 1)], dtype=np.int64)
 
 
 def _cell_keys(points: np.ndarray, basis, cell: float) -> np.ndarray:
     """One int64 key per point for the plane cell (:func:`~reloc.mapping.fusion.plane_cells`) it projects into."""
     ij = plane_cells(points, basis, cell)
-    return ij[:, 0] * 4_194_304 + ij[:, 1]
+    return ij[:, 0] * _KEY_STRIDE + ij[:, 1]
 
 
 def odometry_consistent_frames(plane_sets: list[PlaneSet], T_odom_cams, params: MappingParams) -> np.ndarray:
