@@ -396,6 +396,28 @@ def test_a_pose_may_win_with_the_rest_of_its_submap_unknown_to_the_map_but_not_i
         replace(p, min_explained_known_fraction=0.9)
 
 
+def test_a_decision_whose_poses_all_lose_their_evidence_to_conflicts_reports_normalized_scores():
+    # Two poses 2 m apart: each matches plane 0 (weight 1/2: it matches at both), is in conflict with the map on
+    # plane 1 (weight 1) and leaves plane 2 where the map knows nothing. No pose keeps any evidence (every weight
+    # is 0), while the optimistic rivals keep some (the credit for plane 2).
+    from reloc.matching.scoring import decide
+
+    p = MatchingParams()
+    assert p.optimistic_rivals and p.rival_unknown_weight > 0.5
+    R = np.stack([np.eye(3)] * 2)
+    t = np.array([[0.0, 0.0, 0.0], [2.0, 0.0, 0.0]])
+    match = np.array([[0, -1, -1], [1, -1, -1]], np.int32)
+    overlap = np.array([[1.0, 0.0, 0.0], [1.0, 0.0, 0.0]])
+    state = np.array([[0, 2, 1], [0, 2, 1]], np.int8)
+    d = decide(R, t, match, overlap, np.array([5, 5]), np.array([0.9, 0.9]), p, state=state,
+               areas=np.array([4.0, 4.0, 4.0]), unknown=np.array([0.1, 0.1]))
+    assert not d.accepted and d.best >= 0 and d.score == 0.0
+    # The runner-up is a density normalized like the score (it was the rivals' density over a total weight of 0,
+    # clipped to 1e-300: about 1e300).
+    assert 0.0 < d.runner_up_score <= 1.0
+    assert d.reason == "no pose keeps any evidence: its planes in conflict with the map outweigh its matches"
+
+
 def test_views_of_furniture_the_map_lacks_relocalize_with_the_unknown_credit():
     # The map lacks the shelf (its five faces); views that see it explain too little of themselves without the
     # credit for planes unknown to the map, and relocalize with it, at the true pose.

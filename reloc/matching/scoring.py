@@ -171,8 +171,12 @@ def decide(
         against = np.sum(np.where(state == 2, plane_w[None, :], 0.0), axis=1)
         w_opt = np.maximum(gain - against + params.rival_unknown_weight * np.sum(credit, axis=1), 0.0)
         mode_opt = np.bincount(group, weights=w_opt, minlength=n_modes) / np.maximum(size, 1)
+        # On the scale of the score (normalized by the poses' actual total weight); when conflicts leave no pose
+        # any weight, the score is 0 whatever the rivals hold, and they are normalized by their own total.
         z = float(mode_w.sum())
-        rival = pose_density(R[leaders], t[leaders], mode_opt, params) * (float(mode_opt.sum()) / max(z, 1e-300))
+        rival = pose_density(R[leaders], t[leaders], mode_opt, params)
+        if z > 0:
+            rival = rival * (float(mode_opt.sum()) / z)
     if timings_ms is not None:
         t2 = time.perf_counter()
         timings_ms["weights"] = timings_ms.get("weights", 0.0) + (t1 - t0) * 1e3
@@ -198,7 +202,10 @@ def decide(
     other = _distinct_from(R[leaders], t[leaders], int(np.flatnonzero(leaders == leaders[g_best])[0]), params)
     other &= np.arange(n_modes) != g_best
     runner = float(rival[other].max()) if other.any() else 0.0
-    if score < params.min_score or score <= 0.0:
+    if score <= 0.0:
+        return Decision(False, "no pose keeps any evidence: its planes in conflict with the map outweigh its matches",
+                        best, score, runner, n_modes)
+    if score < params.min_score:
         return Decision(False, f"score {score:.3f} below {params.min_score}", best, score, runner, n_modes)
     if runner > 0 and score < params.min_ambiguity_ratio * runner:
         return Decision(
