@@ -331,7 +331,7 @@ class EvaluationConfig(_Section):
     scene_uniqueness: bool = Field(True, description="Require tau_m matched planes (off = VR-NS).")
     min_matched_planes: int = Field(5, ge=3, description="tau_m: matched planes a pose needs (paper: 5).")
     min_direction_support_m2: float = Field(
-        0.5, ge=0,
+        0.4, ge=0,
         description="Matched planes along the translation's weakest direction must add up to this area: no small "
         "plane alone may pin the pose along an axis (part of scene uniqueness).",
     )

@@ -42,7 +42,7 @@ class MatchingParams:
     verify_samples_per_plane: int = 12
     scene_uniqueness: bool = True
     min_matched_planes: int = 5
-    min_direction_support_m2: float = 0.5
+    min_direction_support_m2: float = 0.4
     min_explained_fraction: float = 0.85
     min_explained_known_fraction: float = 0.7
     min_competitor_fraction: float = 0.6
