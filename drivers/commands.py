@@ -72,9 +72,8 @@ def _record(spec, out_dir, n_frames, duration_s, rate, config_file, options, ove
         sequence = getattr(source, "sequence", None)
         if sequence is not None:
             extra.update(_sequence_files(sequence.path))
-        law = source.noise_law()
-        click.echo(f"recording {source.name} ({source.intrinsics.width}x{source.intrinsics.height}) to {out_dir}"
-                   + (f"; its depth noise ({law[0]}, {law[1]:.3g}) goes with it" if law else ""), err=True)
+        click.echo(f"recording {source.name} ({source.intrinsics.width}x{source.intrinsics.height}) to {out_dir}",
+                   err=True)
         try:
             summary = record(source, out_dir, n_frames=n_frames, duration_s=duration_s, overwrite=overwrite,
                              extra_files=extra, progress=True)

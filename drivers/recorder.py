@@ -57,6 +57,7 @@ class RecordSummary:
     with_gravity: int = 0
     unrepresentable_pixels: int = 0
     seconds: float = 0.0
+    noise_law: tuple[str, float] | None = None  # the camera's depth noise law, stored in recording.json
 
     def text(self) -> str:
         poses = ", ".join(f"{n} {k}" for k, n in self.with_pose.items()) or "none"
@@ -66,6 +67,8 @@ class RecordSummary:
             lines.append(f"  {self.unrepresentable_pixels} pixels beyond the uint16 range were written as 0")
         if self.frames_skipped:
             lines.append(f"  skipped {self.frames_skipped} frames; first reason: {self.skip_reasons[0]}")
+        if self.noise_law is not None:
+            lines.append(f"  the camera's depth noise ({self.noise_law[0]}, {self.noise_law[1]:.3g}) goes with it")
         return "\n".join(lines)
 
 
@@ -224,8 +227,10 @@ def record(source, out_dir: str | os.PathLike, *, n_frames: int | None = None, d
         bar = tqdm(total=n_frames, unit="frame", desc="record", leave=False)
     t0 = time.monotonic()
     # The camera's noise law goes with the recording, so that maps and queries built from it are extracted with it.
-    meta = {"source": source.info(), "noise_law": noise_law_entry(source.noise_law())}
+    law = source.noise_law()
+    meta = {"source": source.info(), "noise_law": noise_law_entry(law)}
     with Recorder(out_dir, overwrite=overwrite, depth_scale=depth_scale, metadata=meta) as rec:
+        rec.summary.noise_law = law
         for name, text in (extra_files or {}).items():
             atomic_write_text(rec.out / name, text)
         try:

@@ -32,9 +32,9 @@ def sim(scene, trajectory, n_frames, seed, scene_seed, noise, camera, width, hei
     import sys
     import time
 
+    from drivers.readers import noise_law_entry
     from reloc._numba import warm_up
     from sim import make_camera
-    from drivers.readers import noise_law_entry
     from sim.writer import write_sequence
 
     if (width is None) != (height is None):

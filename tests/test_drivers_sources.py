@@ -246,15 +246,16 @@ def test_a_recording_keeps_the_cameras_noise_law_and_its_replay_reports_it(tmp_p
 
     with SimSource("office", n_frames=3, rate="fast") as src:  # the OAK-D class stereo camera
         law = src.noise_law()
-        record(src, tmp_path / "rec")
+        summary = record(src, tmp_path / "rec")
     assert law[0] == "stereo" and law[1] > 0
+    assert summary.noise_law == law and f"depth noise (stereo, {law[1]:.3g}) goes with it" in summary.text()
     meta = json.loads((tmp_path / "rec" / "recording.json").read_text())
     assert meta["noise_law"] == {"model": "stereo", "coeff": law[1]}
     assert read_noise_law(tmp_path / "rec") == law
     assert ReplaySource(tmp_path / "rec").noise_law() == law
     # A source that does not know its law records none, and its replay knows none either.
     with ListSource(_frames(2)) as src:
-        record(src, tmp_path / "plain")
+        assert "depth noise" not in record(src, tmp_path / "plain").text()
     assert json.loads((tmp_path / "plain" / "recording.json").read_text())["noise_law"] is None
     assert ReplaySource(tmp_path / "plain").noise_law() is None
     # A damaged entry is an error that names the file and what was expected.
