@@ -147,6 +147,13 @@ class ExtractionConfig(_Section):
         description="Robust passes over the points near each merged plane: refit, then fragments merge again "
         "(0 = planes straight from the merged voxel moments).",
     )
+    bevel_max_width_voxels: float | None = Field(
+        None, gt=0,
+        description="A plane made mostly of corner points is dropped as a bevel across the corner; with a number, "
+        "only when at most this many voxels wide across its shorter in-plane axis (a bevel is a strip along the "
+        "corner; a far stereo wall whose wide noise band makes most of its points corner points is not). Null: any "
+        "width (the default; see docs/BENCHMARKS.md).",
+    )
     min_plane_points: int = Field(200, ge=3, description="Merged planes with fewer points are dropped.")
     min_plane_area_m2: float = Field(0.04, ge=0, description="Merged planes smaller than this are dropped.")
 

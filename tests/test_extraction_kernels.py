@@ -360,6 +360,55 @@ def test_refine_keep_matches_numpy(ray_mode):
     kfin.compose_table(old_to_kept, kept_to_final, table)
     assert np.array_equal(table, np.where(remap >= 0, kept_to_final[np.maximum(remap, 0)], -1))
 
+def test_plane_minor_widths_match_numpy_and_strip_widths():
+    """Width across the shorter in-plane axis, from the voxels' moments, against NumPy on the points themselves
+    (eigenvalues of the in-plane covariance); uniform strips of known width come out at that width."""
+    from reloc.extraction import _kernels_finalize as kfin
+
+    rng = np.random.default_rng(11)
+    # Three planes of random orientation, each a uniform strip (width w, length 3 m) with 1 mm noise along the
+    # normal, cut into voxels of 40 points; one plane owns no voxel.
+    widths_true = np.array([0.25, 0.9, 2.0, 1.0])
+    planes = np.zeros((4, 4))
+    pts_of, pov, counts, sums, scatters = [], [], [], [], []
+    for p, w in enumerate(widths_true):
+        n = rng.normal(size=3)
+        n /= np.linalg.norm(n)
+        t1 = np.cross(n, [0.3, 0.5, 0.8])
+        t1 /= np.linalg.norm(t1)
+        t2 = np.cross(n, t1)
+        c = rng.normal([0.0, 0.0, 3.0], 0.5)
+        planes[p] = [*n, -n @ c]
+        if p == 3:
+            continue
+        q = (c + rng.uniform(-w / 2, w / 2, (800, 1)) * t1 + rng.uniform(-1.5, 1.5, (800, 1)) * t2
+             + rng.normal(0.0, 1e-3, (800, 1)) * n)
+        pts_of.append(q)
+        for v in range(20):
+            block = q[40 * v: 40 * (v + 1)]
+            pov.append(p)
+            counts.append(len(block))
+            sums.append(block.sum(axis=0))
+            scatters.append(block.T @ block)
+    # A voxel of no plane, which must not count.
+    junk = rng.normal(size=(40, 3))
+    pov.append(-1)
+    counts.append(40)
+    sums.append(junk.sum(axis=0))
+    scatters.append(junk.T @ junk)
+    got = np.full(4, np.nan)
+    kfin.plane_minor_widths(planes, np.array(pov, np.int32), np.array(counts, np.int64), np.array(sums),
+                            np.array(scatters), got)
+    for p, q in enumerate(pts_of):
+        n = planes[p, :3]
+        basis = np.linalg.svd(np.eye(3) - np.outer(n, n))[0][:, :2]  # any orthonormal basis of the plane
+        lam = np.linalg.eigvalsh(basis.T @ np.cov(q.T, bias=True) @ basis)[0]
+        assert got[p] == pytest.approx(np.sqrt(12.0 * lam), rel=1e-9)
+        # a uniform strip of width w: variance w^2 / 12 across it (800 points: within a few per cent)
+        assert got[p] == pytest.approx(widths_true[p], rel=0.06)
+    assert got[3] == 0.0
+
+
 def test_fragment_merge_kernel_on_two_coplanar_regions():
     """Two coplanar fragments side by side merge; a parallel one 0.3 m behind does not."""
     rng = np.random.default_rng(9)

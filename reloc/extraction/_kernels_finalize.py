@@ -764,6 +764,58 @@ def refine_keep(acc_w, acc_s, acc_S, refs, ray_mode, planes, wmoments, wscatters
 
 
 @njit(error_model="numpy")
+def plane_minor_widths(planes, plane_of_voxel, counts, sums, scatters, widths):
+    """Width of each plane across its shorter in-plane axis: ``sqrt(12 l)`` with ``l`` the smaller in-plane
+    eigenvalue of the covariance of the points of its voxels (from the voxels' moments ``counts``, ``sums``,
+    ``scatters`` about the origin; the width of a uniform strip). A bevel made by voxels holding two surfaces is a
+    strip about one voxel wide along their corner; a wall is not. ``widths`` (P,) float64; 0 for a plane without
+    voxels."""
+    n_planes = planes.shape[0]
+    acc = np.zeros((n_planes, 10))
+    for v in range(plane_of_voxel.shape[0]):
+        p = plane_of_voxel[v]
+        if p < 0:
+            continue
+        acc[p, 0] += counts[v]
+        acc[p, 1] += sums[v, 0]
+        acc[p, 2] += sums[v, 1]
+        acc[p, 3] += sums[v, 2]
+        acc[p, 4] += scatters[v, 0, 0]
+        acc[p, 5] += scatters[v, 0, 1]
+        acc[p, 6] += scatters[v, 0, 2]
+        acc[p, 7] += scatters[v, 1, 1]
+        acc[p, 8] += scatters[v, 1, 2]
+        acc[p, 9] += scatters[v, 2, 2]
+    for p in range(n_planes):
+        n = acc[p, 0]
+        if n <= 0.0:
+            widths[p] = 0.0
+            continue
+        mx = acc[p, 1] / n
+        my = acc[p, 2] / n
+        mz = acc[p, 3] / n
+        cxx = acc[p, 4] / n - mx * mx
+        cxy = acc[p, 5] / n - mx * my
+        cxz = acc[p, 6] / n - mx * mz
+        cyy = acc[p, 7] / n - my * my
+        cyz = acc[p, 8] / n - my * mz
+        czz = acc[p, 9] / n - mz * mz
+        t1x, t1y, t1z, t2x, t2y, t2z = tangent_basis(planes[p, 0], planes[p, 1], planes[p, 2])
+        # C t1 and C t2, then the 2 x 2 in-plane covariance [[a, b], [b, c]].
+        u0 = cxx * t1x + cxy * t1y + cxz * t1z
+        u1 = cxy * t1x + cyy * t1y + cyz * t1z
+        u2 = cxz * t1x + cyz * t1y + czz * t1z
+        w0 = cxx * t2x + cxy * t2y + cxz * t2z
+        w1 = cxy * t2x + cyy * t2y + cyz * t2z
+        w2 = cxz * t2x + cyz * t2y + czz * t2z
+        a = t1x * u0 + t1y * u1 + t1z * u2
+        b = t2x * u0 + t2y * u1 + t2z * u2
+        c = t2x * w0 + t2y * w1 + t2z * w2
+        lam = 0.5 * (a + c) - math.sqrt(0.25 * (a - c) * (a - c) + b * b)
+        widths[p] = math.sqrt(12.0 * max(lam, 0.0))
+
+
+@njit(error_model="numpy")
 def compose_table(old_to_kept, kept_to_final, table):
     """``table[p] = kept_to_final[old_to_kept[p]]`` (-1 where ``old_to_kept`` is -1)."""
     for p in range(old_to_kept.shape[0]):
@@ -1139,6 +1191,8 @@ def _warmup() -> None:
                     np.empty((1, 3, 3)), np.empty(1, np.int64), np.empty((1, 3)), np.empty(1, np.int64), np.empty(1),
                     np.empty(2, np.int32))
     compose_table(np.array([0, -1], np.int32), np.array([0], np.int32), np.empty(2, np.int32))
+    plane_minor_widths(planes, np.array([0, -1], np.int32), np.array([15, 15], np.int64),
+                       pts[:2].astype(np.float64) * 15, np.tile(np.eye(3), (2, 1, 1)) * 60, np.empty(1))
     counts = np.zeros(1, np.int64)
     sums = np.zeros((1, 3))
     scat = np.zeros((1, 3, 3))

@@ -7,6 +7,7 @@ Points are in the sensor frame with the sensor at the origin."""
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -193,6 +194,7 @@ def refine_merged_planes(
     point_step: int = 1,
     ordered: bool = False,
     workspace: Workspace | None = None,
+    bevel_max_width_m: float = math.inf,
 ) -> MergedPlanes:
     """One robust pass over the points near each merged plane: refit, then merge fragments again.
 
@@ -204,6 +206,9 @@ def refine_merged_planes(
     ``point_step > 1`` (a power of two) refits from about 1 in ``point_step`` points (a cheap first pass; every
     ``point_step``-th of a voxel when ``ordered``, as the points of a depth image are); with 1 the pass's
     assignment of every point is kept in the result (``point_plane``).
+    A plane whose points are mostly corner points (their pixel ray meets another, non-parallel candidate nearly
+    where it meets this plane) is a bevel across that corner and is dropped, unless it is wider than
+    ``bevel_max_width_m`` across its shorter in-plane axis (:func:`plane_minor_widths`; inf: any width).
     """
     ws = fresh(workspace)
     ray = noise_direction == "ray"
@@ -233,6 +238,12 @@ def refine_merged_planes(
     # corner of two other planes is a bevel across that corner made by voxels holding both surfaces: dropped, its
     # points go to the planes around it. Planes that kept points take their refined statistics; the others keep
     # the merged ones.
+    # With a width limit, only a plane as narrow as a bevel can be one: a wall whose points mostly lie where the
+    # ray also meets a fragment tilted across it (far stereo walls, whose noise band is wide) is a wall, kept.
+    if math.isfinite(bevel_max_width_m):
+        widths = np.empty(n)
+        kfin.plane_minor_widths(merged.planes, merged.plane_of_voxel, grid.counts, grid.sums, grid.scatters, widths)
+        acc_amb[widths > bevel_max_width_m] = 0
     old_to_kept = np.empty(n, np.int32)
     k_planes, k_wmom, k_sums = np.empty((n, 4)), np.empty((n, 4)), np.empty((n, 3))
     k_wscat = np.empty((n, 3, 3))

@@ -70,6 +70,10 @@ class ExtractionParams:
     plane's voxels farther than this many sigmas are not labelled as the plane), ``refine_boundary`` (points of
     neighbouring voxels join it when inside that band), ``refine_iterations`` (robust passes over the points near
     each merged plane: refit, then fragments merge again; 0 = planes straight from the merged moments),
+    ``bevel_max_width_voxels`` (None: any plane made mostly of corner points is dropped as a bevel across the
+    corner; a number: only one at most this many voxels wide across its shorter in-plane axis, since voxels holding
+    two surfaces make a strip along their corner about a voxel wide. Off by default: see docs/BENCHMARKS.md,
+    "Bevels no wider than a strip", for what it does to stereo planes and to relocalization),
     ``min_plane_points``,
     ``min_plane_area_m2``; ``gravity_fallback`` says what a frame without ``gravity_cam`` (an IMU's) gets: the
     camera's +y axis (``"camera_y"``; the plane set's ``gravity_tolerance_rad`` is then ``camera_tilt_tolerance_rad``,
@@ -113,6 +117,7 @@ class ExtractionParams:
     inlier_sigmas: float = 4.0
     refine_boundary: bool = True
     refine_iterations: int = 2
+    bevel_max_width_voxels: float | None = None
     min_plane_points: int = 200
     min_plane_area_m2: float = 0.04
     gravity_fallback: str = "camera_y"
@@ -139,6 +144,12 @@ class ExtractionParams:
             v = getattr(self, name)
             if not isinstance(v, (int, float)) or not math.isfinite(v) or v < 0:
                 raise ValueError(f"ExtractionParams.{name}: expected a finite number >= 0, got {v!r}")
+        bw = self.bevel_max_width_voxels
+        if bw is not None and (isinstance(bw, bool) or not isinstance(bw, (int, float)) or not math.isfinite(bw)
+                               or bw <= 0):
+            raise ValueError(
+                f"ExtractionParams.bevel_max_width_voxels: expected None or a finite number > 0, got {bw!r}"
+            )
         if self.max_depth_m <= self.min_depth_m:
             raise ValueError(
                 f"ExtractionParams.max_depth_m: expected > min_depth_m ({self.min_depth_m}), got {self.max_depth_m}"
@@ -172,6 +183,12 @@ class ExtractionParams:
         if self.gravity_fallback not in GRAVITY_FALLBACKS:
             raise ValueError(f"ExtractionParams.gravity_fallback: expected one of {GRAVITY_FALLBACKS}, "
                              f"got {self.gravity_fallback!r}")
+
+    @property
+    def bevel_max_width_m(self) -> float:
+        """``bevel_max_width_voxels`` in metres (inf when None: no limit)."""
+        bw = self.bevel_max_width_voxels
+        return math.inf if bw is None else bw * self.voxel_size_m
 
     @property
     def noise_power(self) -> int:
