@@ -360,14 +360,15 @@ def test_refine_keep_matches_numpy(ray_mode):
     kfin.compose_table(old_to_kept, kept_to_final, table)
     assert np.array_equal(table, np.where(remap >= 0, kept_to_final[np.maximum(remap, 0)], -1))
 
+
 def test_plane_minor_widths_match_numpy_and_strip_widths():
     """Width across the shorter in-plane axis, from the voxels' moments, against NumPy on the points themselves
     (eigenvalues of the in-plane covariance); uniform strips of known width come out at that width."""
     from reloc.extraction import _kernels_finalize as kfin
 
     rng = np.random.default_rng(11)
-    # Three planes of random orientation, each a uniform strip (width w, length 3 m) with 1 mm noise along the
-    # normal, cut into voxels of 40 points; one plane owns no voxel.
+    # Planes 0-2 of random orientation, each a uniform strip (width w, length 3 m) with 1 mm noise along the normal,
+    # cut into voxels of 40 points; plane 3 owns no voxel.
     widths_true = np.array([0.25, 0.9, 2.0, 1.0])
     planes = np.zeros((4, 4))
     pts_of, pov, counts, sums, scatters = [], [], [], [], []
