@@ -10,6 +10,7 @@ Benchmarks are scripts, not an installed package: run them from the repository r
 
 from __future__ import annotations
 
+import ast
 import dataclasses
 import datetime as _dt
 import json
@@ -32,6 +33,7 @@ __all__ = [
     "format_table",
     "print_table",
     "write_results",
+    "parse_overrides",
 ]
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
@@ -181,3 +183,20 @@ def write_results(name: str, *, params: dict, results: Any, out_dir: Path | None
     }
     atomic_write_text(path, json.dumps(jsonable(payload), indent=1, allow_nan=False) + "\n")
     return path
+
+
+def parse_overrides(items: Iterable[str], option: str = "--set") -> dict:
+    """``KEY=VALUE`` strings (a repeatable ``--set`` option) to a dict: VALUE (spaces around it dropped) parsed as a
+    Python literal (numbers, True, None, tuples), else kept as a string. Raises ValueError naming an item without
+    ``=`` or without a key."""
+    out: dict = {}
+    for item in items:
+        key, sep, value = item.partition("=")
+        value = value.strip()
+        if not sep or not key.strip():
+            raise ValueError(f"{option}: expected KEY=VALUE, got {item!r}")
+        try:
+            out[key.strip()] = ast.literal_eval(value)
+        except (ValueError, SyntaxError):
+            out[key.strip()] = value
+    return out

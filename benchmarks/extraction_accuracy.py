@@ -47,7 +47,6 @@ cross-frame consistency in the world frame with the ground-truth poses, point-to
 from __future__ import annotations
 
 import argparse
-import ast
 import math
 import os
 import sys
@@ -61,7 +60,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 import plane_baselines as pb  # noqa: E402
-from _common import print_table, write_results  # noqa: E402
+from _common import parse_overrides, print_table, write_results  # noqa: E402
 
 from reloc.planes import plane_errors  # noqa: E402
 
@@ -901,14 +900,10 @@ def main(argv: list[str] | None = None) -> int:
                     help="ExtractionParams override for ours as shipped (repeatable; VALUE parsed as a Python literal "
                          "or taken as a string), to measure a candidate default")
     args = ap.parse_args(argv)
-    for item in args.set:
-        key, sep, value = item.partition("=")
-        if not sep:
-            ap.error(f"--set: expected KEY=VALUE, got {item!r}")
-        try:
-            OURS_OVERRIDES[key.strip()] = ast.literal_eval(value)
-        except (ValueError, SyntaxError):
-            OURS_OVERRIDES[key.strip()] = value
+    try:
+        OURS_OVERRIDES.update(parse_overrides(args.set))
+    except ValueError as exc:
+        ap.error(str(exc))
 
     name = args.name or ("extraction_accuracy_quick" if args.quick else "extraction_accuracy")
     protocols = {int(p) for p in args.protocols.split(",") if p.strip()}
