@@ -34,6 +34,7 @@ __all__ = [
     "print_table",
     "write_results",
     "parse_overrides",
+    "results_name",
 ]
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
@@ -169,9 +170,7 @@ def write_results(name: str, *, params: dict, results: Any, out_dir: Path | None
     """
     from reloc.atomic import atomic_write_text
 
-    if not name or any(c in name for c in "/\\"):
-        raise ValueError(f"name: expected a plain file stem, got {name!r}")
-    path = (out_dir or RESULTS_DIR) / f"{name}.json"
+    path = (out_dir or RESULTS_DIR) / f"{results_name(name)}.json"
     payload = {
         "benchmark": name,
         "date": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
@@ -200,3 +199,11 @@ def parse_overrides(items: Iterable[str], option: str = "--set") -> dict:
         except (ValueError, SyntaxError):
             out[key.strip()] = value
     return out
+
+
+def results_name(name: str) -> str:
+    """``name`` if it is a plain file stem for ``benchmarks/results`` (checked when a script starts, not after an
+    hour of measuring), else ValueError."""
+    if not name or any(c in name for c in "/\\") or name in (".", ".."):
+        raise ValueError(f"--name: expected a plain file stem, got {name!r}")
+    return name

@@ -60,7 +60,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 import plane_baselines as pb  # noqa: E402
-from _common import parse_overrides, print_table, write_results  # noqa: E402
+from _common import parse_overrides, print_table, results_name, write_results  # noqa: E402
 
 from reloc.planes import plane_errors  # noqa: E402
 
@@ -900,12 +900,12 @@ def main(argv: list[str] | None = None) -> int:
                     help="ExtractionParams override for ours as shipped (repeatable; VALUE parsed as a Python literal "
                          "or taken as a string), to measure a candidate default")
     args = ap.parse_args(argv)
+    name = args.name or ("extraction_accuracy_quick" if args.quick else "extraction_accuracy")
     try:
+        results_name(name)
         OURS_OVERRIDES.update(parse_overrides(args.set))
     except ValueError as exc:
         ap.error(str(exc))
-
-    name = args.name or ("extraction_accuracy_quick" if args.quick else "extraction_accuracy")
     protocols = {int(p) for p in args.protocols.split(",") if p.strip()}
     if not protocols <= {1, 2, 3}:
         ap.error(f"--protocols: expected a subset of 1,2,3, got {args.protocols!r}")

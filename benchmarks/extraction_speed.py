@@ -59,10 +59,15 @@ def main() -> None:
 
     sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
     import sim
-    from _common import print_table, write_results
+    from _common import print_table, results_name, write_results
 
     from reloc._numba import warm_up
     from reloc.extraction import STAGES, ExtractionParams, PlaneExtractor
+
+    try:
+        results_name(args.name)
+    except ValueError as exc:
+        ap.error(str(exc))
 
     n_frames = 40 if args.quick else args.frames
     variants = [v.strip() for v in args.variants.split(",") if v.strip()]

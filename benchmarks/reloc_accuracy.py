@@ -37,7 +37,7 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from _common import parse_overrides, print_table, write_results  # noqa: E402
+from _common import parse_overrides, print_table, results_name, write_results  # noqa: E402
 
 
 def paper_settings(params):
@@ -87,6 +87,7 @@ def main() -> int:
     from reloc.matching import ABLATIONS, MatchingParams
 
     try:
+        results_name(args.name)
         extraction = ExtractionParams().with_(**parse_overrides(args.set)) if args.set else None
     except ValueError as exc:
         ap.error(str(exc))

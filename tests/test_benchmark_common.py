@@ -9,7 +9,7 @@ import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
 
-from _common import parse_overrides  # noqa: E402
+from _common import parse_overrides, results_name, write_results  # noqa: E402
 
 
 def test_overrides_parse_literals_and_keep_other_values_as_strings():
@@ -25,3 +25,22 @@ def test_overrides_parse_literals_and_keep_other_values_as_strings():
 def test_an_override_without_a_key_or_value_is_refused_by_name(item):
     with pytest.raises(ValueError, match="--set: expected KEY=VALUE"):
         parse_overrides([item])
+
+
+@pytest.mark.parametrize("name", ["", "a/b", "..", "x\\y"])
+def test_a_results_name_that_is_not_a_plain_stem_is_refused(name, tmp_path):
+    with pytest.raises(ValueError, match="--name: expected a plain file stem"):
+        results_name(name)
+    with pytest.raises(ValueError, match="--name"):
+        write_results(name, params={}, results={}, out_dir=tmp_path)
+    assert results_name("reloc_accuracy_stereo_bevel3") == "reloc_accuracy_stereo_bevel3"
+
+
+def test_the_benchmark_scripts_refuse_a_bad_name_before_measuring():
+    import subprocess
+
+    root = Path(__file__).resolve().parents[1]
+    for script in ("reloc_accuracy.py", "extraction_accuracy.py", "extraction_speed.py"):
+        done = subprocess.run([sys.executable, str(root / "benchmarks" / script), "--name", "a/b"],
+                              capture_output=True, text=True, timeout=120)
+        assert done.returncode == 2 and "--name: expected a plain file stem" in done.stderr, (script, done.stderr)
