@@ -52,7 +52,7 @@ def _read_npy(p: Path) -> np.ndarray:
         raise ValueError(f"{p}: expected an (N, 3) array of points, got shape {getattr(arr, 'shape', None)}")
     if arr.dtype.kind not in "fiu":
         raise ValueError(f"{p}: expected a numeric array, got dtype {arr.dtype}")
-    return _check_finite(np.ascontiguousarray(arr, dtype=np.float32), p)
+    return _as_points(arr, p)
 
 
 def read_ply(path: str | os.PathLike) -> np.ndarray:
@@ -163,8 +163,7 @@ def _read_binary_vertices(data: bytes, offset: int, elements: list[dict], endian
                     f"{len(data) - offset} bytes follow the previous data"
                 )
             v = np.frombuffer(data, dtype=dtype, count=element["count"], offset=offset)
-            pts = np.stack([v["x"], v["y"], v["z"]], axis=1).astype(np.float32)
-            return _check_finite(pts, p)
+            return _as_points(np.stack([v["x"], v["y"], v["z"]], axis=1), p)
         offset = _skip_binary_element(data, offset, element, endian, p)
     raise AssertionError("unreachable: the header check guarantees a vertex element")
 
@@ -205,7 +204,7 @@ def _read_ascii_vertices(body: bytes, elements: list[dict], first_line: int, p: 
                 )
             names = [name for name, _ in element["props"]]
             cols = [names.index(a) for a in ("x", "y", "z")]
-            pts = np.empty((len(rows), 3), dtype=np.float32)
+            pts = np.empty((len(rows), 3), dtype=np.float64)
             for i, line in enumerate(rows):
                 tok = line.split()
                 where = f"{p}: line {first_line + start + i} (vertex {i})"
@@ -215,9 +214,23 @@ def _read_ascii_vertices(body: bytes, elements: list[dict], first_line: int, p: 
                     pts[i] = [float(tok[c]) for c in cols]
                 except ValueError:
                     raise ValueError(f"{where}: expected numbers, got {line!r}") from None
-            return _check_finite(pts, p)
+            return _as_points(pts, p)
         start += element["count"]
     raise AssertionError("unreachable: the header check guarantees a vertex element")
+
+
+def _as_points(arr: np.ndarray, p: Path) -> np.ndarray:
+    """``arr`` (N, 3) as float32 points, refusing coordinates that are not finite or beyond float32's range (a
+    float64 or integer file may hold them; cast, they would become inf with a RuntimeWarning)."""
+    if arr.dtype != np.float32:
+        a64 = arr.astype(np.float64)
+        with np.errstate(invalid="ignore"):
+            big = (np.isfinite(a64) & (np.abs(a64) > np.finfo(np.float32).max)).any(axis=1)
+        if big.any():
+            i = int(np.argmax(big))
+            raise ValueError(f"{p}: {int(big.sum())} points with coordinates beyond float32's range (+-3.4e38) "
+                             f"(first: point {i} = {arr[i].tolist()})")
+    return _check_finite(np.ascontiguousarray(arr, dtype=np.float32), p)
 
 
 def _check_finite(pts: np.ndarray, p: Path) -> np.ndarray:

@@ -96,7 +96,8 @@ class PlaneSet:
         if bad:
             raise ValueError(f"{name}: expected finite plane geometry, got non-finite {', '.join(bad)}")
         if len(self):
-            err = float(np.abs(np.linalg.norm(self.normals, axis=1) - 1.0).max())
+            with np.errstate(over="ignore"):  # a huge finite normal is reported below, not warned about
+                err = float(np.abs(np.linalg.norm(self.normals, axis=1) - 1.0).max())
             if err > 1e-6:
                 raise ValueError(f"{name}: expected unit normals, got |n| off by up to {err:.3g}")
             if self.areas.min() < 0 or self.radii.min() < 0 or self.counts.min() < 0:

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 import pytest
 
@@ -77,6 +79,18 @@ def test_npy(tmp_path, points):
     np.save(tmp_path / "nan.npy", np.array([[0, 0, 0], [1, np.inf, 2]]))
     with pytest.raises(ValueError, match=r"nan.npy: 1 points with non-finite coordinates \(first: point 1"):
         read_point_cloud(tmp_path / "nan.npy")
+    # Finite in the file but not as float32: refused by name, not turned into inf with a RuntimeWarning.
+    np.save(tmp_path / "big.npy", np.array([[0.0, 0.0, 0.0], [1.0, 2.0, 3.0], [1e39, 0.0, 0.0]]))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        with pytest.raises(ValueError, match=r"big.npy: 1 points with coordinates beyond float32's range \(\+-3.4e38\) "
+                                             r"\(first: point 2 = \[1e\+39, 0.0, 0.0\]\)"):
+            read_point_cloud(tmp_path / "big.npy")
+        ply = tmp_path / "big.ply"
+        ply.write_text("ply\nformat ascii 1.0\nelement vertex 2\nproperty float x\nproperty float y\n"
+                       "property float z\nend_header\n0 0 0\n1 -4e38 2\n")
+        with pytest.raises(ValueError, match=r"big.ply: 1 points with coordinates beyond float32's range"):
+            read_point_cloud(ply)
 
 
 def test_errors(tmp_path, points):
