@@ -913,3 +913,56 @@ def test_smallest_eig3_matches_numpy_eigh(kind):
             assert 1.0 - abs(V[:, 0] @ V_j[:, 0]) < tol
         else:
             assert np.linalg.norm(M @ V[:, 0] - w[0] * V[:, 0]) < 1e-14 * scale
+
+
+def test_weight_and_noise_helpers_match_their_formulas():
+    """The per-point helpers every fit uses, against the formulas written out in NumPy: the noise laws, the
+    point-to-plane sigma along the ray, the inverse-variance weights, the paper's Eq. 2 position weight (square
+    model inside sigma = r_max / 2, exponential outside) and Tukey's biweight."""
+    from reloc.extraction import _kernels_fit as kfit
+
+    rng = np.random.default_rng(21)
+    z = rng.uniform(0.3, 9.0, 50)
+    for power, law in ((0, lambda z: np.full_like(z, 2e-3)), (1, lambda z: 2e-3 * z), (2, lambda z: 2e-3 * z**2)):
+        got = np.array([kfit.point_sigma(v, power, 2e-3) for v in z])
+        np.testing.assert_allclose(got, law(z), rtol=1e-15)
+    assert kfit.point_sigma(0.0, 2, 1.0) == kfit.MIN_DEPTH**2  # never zero
+    q = rng.normal([0.0, 0.0, 3.0], [1.0, 1.0, 0.5], (50, 3))
+    n = rng.normal(size=(50, 3))
+    n /= np.linalg.norm(n, axis=1, keepdims=True)
+    sig_z = 0.01
+    incidence = np.maximum(np.abs(np.sum(n * q, axis=1)) / q[:, 2], kfit.MIN_INCIDENCE)  # |n . ray| / ray_z
+    for i in range(50):
+        ray = kfit.distance_sigma(*q[i], *n[i], sig_z, True)
+        assert ray == pytest.approx(sig_z * incidence[i], rel=1e-12)
+        assert kfit.distance_sigma(*q[i], *n[i], sig_z, False) == sig_z
+        assert kfit.noise_weight(q[i, 2], sig_z, ray, True) == pytest.approx(q[i, 2] ** 2 / sig_z**2, rel=1e-12)
+        assert kfit.noise_weight(q[i, 2], sig_z, ray, False) == pytest.approx(1.0 / ray**2, rel=1e-12)
+    rho = np.linspace(0.0, 1.0, 101)
+    alpha, beta = 0.5, 2.0
+    want = np.where(rho <= 0.5, np.maximum(1.0 - alpha * rho**2, 0.0), np.exp(-beta * rho**2))
+    np.testing.assert_allclose([kfit.position_weight(r, alpha, beta) for r in rho], want, rtol=1e-14)
+    assert kfit.position_weight(0.4, 10.0, 2.0) == 0.0  # the square model is clipped at zero
+    u = np.linspace(-5.0, 5.0, 201)
+    c = 3.0
+    want = np.where(np.abs(u) < c, (1.0 - (u / c) ** 2) ** 2, 0.0)
+    np.testing.assert_allclose([kfit.tukey_weight(v, c) for v in u], want, rtol=1e-14, atol=1e-300)
+
+
+def test_symmetric_solve_and_subsample_step_match_numpy():
+    from reloc.extraction import _kernels_linalg as kl
+    from reloc.extraction import _kernels_voxelfit as kvf
+
+    rng = np.random.default_rng(22)
+    for _ in range(50):
+        a = rng.normal(size=(3, 3))
+        S = a @ a.T + 0.1 * np.eye(3)
+        b = rng.normal(size=3)
+        *x, ok = kl.solve_sym3(S[0, 0], S[0, 1], S[0, 2], S[1, 1], S[1, 2], S[2, 2], *b)
+        assert ok
+        np.testing.assert_allclose(x, np.linalg.solve(S, b), rtol=1e-8, atol=1e-10)
+    singular = np.outer([1.0, 2.0, 3.0], [1.0, 2.0, 3.0])
+    assert kl.solve_sym3(*singular[0], singular[1, 1], singular[1, 2], singular[2, 2], 1.0, 1.0, 1.0)[3] is False
+    for n in (0, 1, 255, 256, 257, 512, 513, 10_000):
+        k = kvf.pow2_step(n, 256)
+        assert k & (k - 1) == 0 and n / k <= 256 and (k == 1 or n / (k // 2) > 256), (n, k)
