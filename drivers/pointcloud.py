@@ -223,7 +223,7 @@ def _as_points(arr: np.ndarray, p: Path) -> np.ndarray:
     """``arr`` (N, 3) as float32 points, refusing coordinates that are not finite or beyond float32's range (a
     float64 or integer file may hold them; cast, they would become inf with a RuntimeWarning)."""
     if arr.dtype != np.float32:
-        a64 = arr.astype(np.float64)
+        a64 = arr.astype(np.float64, copy=False)  # no copy of a float64 file's array
         with np.errstate(invalid="ignore"):
             big = (np.isfinite(a64) & (np.abs(a64) > np.finfo(np.float32).max)).any(axis=1)
         if big.any():
