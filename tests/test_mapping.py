@@ -239,3 +239,83 @@ def test_free_space_is_carved_in_front_of_surfaces_only():
     behind = voxel_keys(np.array([[0.0, 0.0, 3.0], [0.0, 0.0, 3.5], [0.0, 0.0, 5.0]]), 0.2)
     assert all(k in free for k in ahead.tolist())
     assert not any(k in free for k in behind.tolist())
+
+
+# -- the fusion's bookkeeping kernels against the NumPy they replace (the same figures, to the last bit) ----------
+
+
+def _random_keys(rng, n, span=40):
+    from reloc.mapping.fusion import voxel_keys
+
+    return voxel_keys(rng.integers(-span, span, size=(n, 3)) * 0.1 + 0.05, 0.1)
+
+
+def test_voxel_sums_match_unique_and_bincount():
+    from reloc.mapping import _kernels as K
+
+    rng = np.random.default_rng(0)
+    for n in (1, 2, 7, 300):
+        pts = rng.normal(size=(n, 3)) * 0.3
+        keys = _random_keys(rng, n, span=2)  # at most 4^3 distinct voxels: most hold several points
+        uk, inv = np.unique(keys, return_inverse=True)
+        ref_sums = np.stack([np.bincount(inv, pts[:, a], len(uk)) for a in range(3)], axis=1)
+        ref_counts = np.bincount(inv, minlength=len(uk)).astype(np.float64)
+        ko, so, co = np.empty(n, np.int64), np.empty((n, 3)), np.empty(n)
+        k = K.voxel_sums(keys, pts, np.argsort(keys, kind="stable"), ko, so, co)
+        assert k == len(uk)
+        assert np.array_equal(ko[:k], uk) and np.array_equal(so[:k], ref_sums) and np.array_equal(co[:k], ref_counts)
+    assert k <= 64  # the last case: 300 points in at most 64 voxels, each voxel's summed in input order
+
+
+def test_merged_voxel_sums_match_unique_and_bincount_of_both():
+    from reloc.mapping import _kernels as K
+
+    rng = np.random.default_rng(1)
+    for na, nb in ((0, 5), (5, 0), (30, 40), (200, 3)):
+        ka = np.unique(_random_keys(rng, na, span=4)) if na else np.zeros(0, np.int64)
+        kb = np.unique(np.concatenate([_random_keys(rng, nb, span=4), ka[: min(na, nb) // 2]]))
+        sa, sb = rng.normal(size=(len(ka), 3)), rng.normal(size=(len(kb), 3))
+        ca, cb = rng.integers(1, 9, len(ka)).astype(float), rng.integers(1, 9, len(kb)).astype(float)
+        keys = np.concatenate([ka, kb])
+        uk, inv = np.unique(keys, return_inverse=True)
+        vs = np.concatenate([sa, sb])
+        ref_sums = np.stack([np.bincount(inv, vs[:, a], len(uk)) for a in range(3)], axis=1)
+        ref_counts = np.bincount(inv, np.concatenate([ca, cb]), len(uk))
+        size = len(ka) + len(kb)
+        ko, so, co = np.empty(size, np.int64), np.empty((size, 3)), np.empty(size)
+        k = K.merge_voxel_sums(ka, sa, ca, kb, sb, cb, ko, so, co)
+        assert np.array_equal(ko[:k], uk) and np.array_equal(so[:k], ref_sums) and np.array_equal(co[:k], ref_counts)
+        assert k == len(ka) + len(kb) - len(np.intersect1d(ka, kb))
+    assert len(np.intersect1d(ka, kb)) > 0  # the last case shares voxels (summed a + b)
+
+
+def test_touching_count_matches_a_search_of_every_neighbour():
+    from reloc.mapping import _kernels as K
+    from reloc.mapping.fusion import _NEIGHBOUR_OFFSETS, _neighbours
+
+    rng = np.random.default_rng(2)
+    for nq, nm in ((1, 1), (50, 80), (300, 20)):
+        kq = np.unique(_random_keys(rng, nq, span=6))
+        km = np.unique(_random_keys(rng, nm, span=6))
+        around = _neighbours(kq)
+        pos = np.searchsorted(km, around).clip(max=len(km) - 1)
+        expected = int(np.any(km[pos] == around, axis=1).sum())
+        assert K.count_touching(kq, km, _NEIGHBOUR_OFFSETS) == expected
+    far = np.unique(_random_keys(rng, 20, span=3)) + (np.int64(100) << 42)  # 10 m away along x: no neighbour
+    assert K.count_touching(far, km, _NEIGHBOUR_OFFSETS) == 0
+
+
+def test_symmetric_pseudo_inverse_is_numpys_to_the_last_bit():
+    from reloc.mapping.fusion import _pinv_symmetric
+
+    rng = np.random.default_rng(3)
+    for i in range(300):
+        A = rng.normal(size=(4, 4)) * rng.uniform(1e-6, 10, size=4)
+        C = A @ A.T
+        if i % 3 == 0:  # rank 3, as the (n, d) covariances are (no information along the unit normal)
+            v = rng.normal(size=4)
+            v /= np.linalg.norm(v)
+            P = np.eye(4) - np.outer(v, v)
+            C = P @ C @ P
+        C = 0.5 * (C + C.T)
+        assert np.array_equal(_pinv_symmetric(C, 1e-10), np.linalg.pinv(C, rcond=1e-10, hermitian=True))

@@ -1,4 +1,5 @@
-"""Numba kernels of map building: carving the free space a depth frame saw (arrays in, arrays out)."""
+"""Numba kernels of map building: carving the free space a depth frame saw, and the per-voxel sample bookkeeping of
+plane fusion (arrays in, arrays out)."""
 
 from __future__ import annotations
 
@@ -58,8 +59,105 @@ def carve_free_space(depth, fx, fy, cx, cy, R, t, stride, voxel, margin, max_ran
     return n
 
 
+@njit
+def _lower_bound(keys, key):
+    lo = 0
+    hi = keys.shape[0]
+    while lo < hi:
+        mid = (lo + hi) >> 1
+        if keys[mid] < key:
+            lo = mid + 1
+        else:
+            hi = mid
+    return lo
+
+
+@njit
+def count_touching(keys_q, keys_m, offsets):
+    """How many of the voxel keys ``keys_q`` have a key of the sorted array ``keys_m`` among their neighbours
+    (``keys_q[i] + offsets[o]``: keys are packed so that offsets add, see ``fusion.voxel_keys``)."""
+    n = 0
+    nm = keys_m.shape[0]
+    for i in range(keys_q.shape[0]):
+        for o in range(offsets.shape[0]):
+            key = keys_q[i] + offsets[o]
+            at = _lower_bound(keys_m, key)
+            if at < nm and keys_m[at] == key:
+                n += 1
+                break
+    return n
+
+
+@njit
+def voxel_sums(keys, points, order, keys_out, sums_out, counts_out):
+    """Per distinct key of ``keys`` (N,): the sum of its ``points`` (N, 3) and their number, in increasing key order.
+
+    ``order`` is a stable argsort of ``keys``, so each voxel's points are added in their input order (the figures
+    ``np.unique`` with ``np.bincount`` give, to the last bit). Returns the number of distinct keys written."""
+    k = -1
+    last = np.int64(0)
+    for r in range(order.shape[0]):
+        i = order[r]
+        key = keys[i]
+        if k < 0 or key != last:
+            k += 1
+            keys_out[k] = key
+            sums_out[k, 0] = 0.0
+            sums_out[k, 1] = 0.0
+            sums_out[k, 2] = 0.0
+            counts_out[k] = 0.0
+            last = key
+        sums_out[k, 0] += points[i, 0]
+        sums_out[k, 1] += points[i, 1]
+        sums_out[k, 2] += points[i, 2]
+        counts_out[k] += 1.0
+    return k + 1
+
+
+@njit
+def merge_voxel_sums(keys_a, sums_a, counts_a, keys_b, sums_b, counts_b, keys_out, sums_out, counts_out):
+    """Two planes' per-voxel sample sums (sorted distinct keys) merged into one: a voxel both hold gets the sum of
+    the two (``a + b``, as ``np.bincount`` over the concatenation adds them). Returns the number of keys written."""
+    na = keys_a.shape[0]
+    nb = keys_b.shape[0]
+    i = 0
+    j = 0
+    n = 0
+    while i < na or j < nb:
+        if j >= nb or (i < na and keys_a[i] < keys_b[j]):
+            keys_out[n] = keys_a[i]
+            for c in range(3):
+                sums_out[n, c] = sums_a[i, c]
+            counts_out[n] = counts_a[i]
+            i += 1
+        elif i >= na or keys_b[j] < keys_a[i]:
+            keys_out[n] = keys_b[j]
+            for c in range(3):
+                sums_out[n, c] = sums_b[j, c]
+            counts_out[n] = counts_b[j]
+            j += 1
+        else:
+            keys_out[n] = keys_a[i]
+            for c in range(3):
+                sums_out[n, c] = sums_a[i, c] + sums_b[j, c]
+            counts_out[n] = counts_a[i] + counts_b[j]
+            i += 1
+            j += 1
+        n += 1
+    return n
+
+
 @register_warmup
 def _warmup() -> None:
     depth = np.full((4, 4), 2.0, np.float32)
     out = np.empty(1000, np.int64)
     carve_free_space(depth, 2.0, 2.0, 2.0, 2.0, np.eye(3), np.zeros(3), 1, 0.2, 0.3, 5.0, out)
+    keys = np.array([3, 1, 3], np.int64)
+    pts = np.ones((3, 3))
+    ko = np.empty(3, np.int64)
+    so = np.empty((3, 3))
+    co = np.empty(3)
+    n = voxel_sums(keys, pts, np.argsort(keys, kind="stable"), ko, so, co)
+    count_touching(ko[:n], ko[:n], np.zeros(1, np.int64))
+    k2 = np.empty(4, np.int64)
+    merge_voxel_sums(ko[:n], so[:n], co[:n], ko[:n], so[:n], co[:n], k2, np.empty((4, 3)), np.empty(4))

@@ -270,7 +270,7 @@ def build_map(
 
 def _offset_variance(cov: np.ndarray, point: np.ndarray) -> float:
     """Variance of a plane's signed distance at ``point`` from the (4, 4) covariance of its ``(n, d)``."""
-    v = np.r_[point, 1.0]
+    v = np.array([point[0], point[1], point[2], 1.0])
     return float(v @ cov @ v)
 
 
