@@ -55,25 +55,25 @@ def main() -> None:
         return
     os.environ["NUMBA_NUM_THREADS"] = str(args.threads)  # before numba is imported (by reloc below)
 
-    import numpy as np
-
     sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-    import sim
     from _common import print_table, results_name, write_results
 
-    from reloc._numba import warm_up
-    from reloc.extraction import STAGES, ExtractionParams, PlaneExtractor
-
     try:
-        results_name(args.name)
+        results_name(args.name)  # before the simulator and numba are imported
     except ValueError as exc:
         ap.error(str(exc))
-
-    n_frames = 40 if args.quick else args.frames
     variants = [v.strip() for v in args.variants.split(",") if v.strip()]
     unknown = [v for v in variants if v not in VARIANTS]
     if unknown:
         ap.error(f"--variants: unknown {unknown}; expected some of {list(VARIANTS)}")
+
+    import numpy as np
+
+    import sim
+    from reloc._numba import warm_up
+    from reloc.extraction import STAGES, ExtractionParams, PlaneExtractor
+
+    n_frames = 40 if args.quick else args.frames
     info = warm_up(("reloc.extraction",))
     print(f"warm-up: {info['kernels']} kernels in {info['seconds']:.1f} s ({info['cold']} compiled cold); "
           f"numba threads: {args.threads}")
