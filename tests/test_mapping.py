@@ -319,3 +319,32 @@ def test_symmetric_pseudo_inverse_is_numpys_to_the_last_bit():
             C = P @ C @ P
         C = 0.5 * (C + C.T)
         assert np.array_equal(_pinv_symmetric(C, 1e-10), np.linalg.pinv(C, rcond=1e-10, hermitian=True))
+
+
+def test_fusion_median_is_numpys():
+    from reloc.mapping.fusion import _median
+
+    rng = np.random.default_rng(4)
+    for n in (1, 2, 3, 4, 17, 100, 101):
+        x = np.abs(rng.normal(size=n))
+        assert _median(x) == float(np.median(x))
+        x[rng.integers(n)] = np.nan
+        assert math.isnan(_median(x)) and math.isnan(float(np.median(x)))
+    assert _median(np.array([1.0, 1.0, 2.0, 2.0])) == 1.5
+
+
+def test_stacked_informations_are_each_planes_own():
+    from reloc.mapping.fusion import _information, _informations
+
+    rng = np.random.default_rng(5)
+    covs = []
+    for i in range(7):
+        A = rng.normal(size=(4, 4)) * 1e-3
+        covs.append(A @ A.T)
+    covs[2] = np.zeros((4, 4))  # no information: trace 0
+    covs[5] = np.full((4, 4), np.nan)  # unusable
+    got = _informations(np.array(covs))
+    assert got[2] is None and got[5] is None and _informations(np.zeros((0, 4, 4))) == []
+    for g, c in zip(got, covs):
+        want = _information(c)
+        assert (g is None and want is None) or np.array_equal(g, want)

@@ -284,6 +284,33 @@ def _cell_keys(points: np.ndarray, basis, cell: float) -> np.ndarray:
     return ij[:, 0] * _KEY_STRIDE + ij[:, 1]
 
 
+class _MovedGeometry:
+    """What the odometry check reads of ``plane_sets[k].subset(sel).transformed(T, ...)`` (normals, centroids,
+    radii, areas, (n, d) covariances, samples), made by the same expressions on the same arrays, so the same
+    figures to the last bit, without the sufficient statistics and the validation of two new PlaneSets (a window
+    of 40 frames: 15 -> 10 ms)."""
+
+    def __init__(self, ps: PlaneSet, sel: np.ndarray, T_a_b: np.ndarray):
+        T = np.asarray(T_a_b, dtype=np.float64)
+        R, t = T[:3, :3], T[:3, 3]
+        self.normals = ps.normals[sel] @ R.T
+        self.centroids = ps.centroids[sel] @ R.T + t
+        self.radii = ps.radii[sel]
+        self.areas = ps.areas[sel]
+        J = np.zeros((4, 4))
+        J[:3, :3] = R
+        J[3, :3] = -t @ R
+        J[3, 3] = 1.0
+        self.covariances = np.einsum("ij,njk,lk->nil", J, ps.covariances[sel], J)
+        pieces = [ps.samples_of(int(i)) for i in sel]
+        self.sample_ptr = np.concatenate([[0], np.cumsum([len(p) for p in pieces])]).astype(np.int64)
+        pts = np.concatenate(pieces) if pieces else np.zeros((0, 3), np.float32)
+        self.sample_points = (pts.astype(np.float64) @ R.T + t).astype(np.float32)
+
+    def samples_of(self, i: int) -> np.ndarray:
+        return self.sample_points[self.sample_ptr[i] : self.sample_ptr[i + 1]]
+
+
 def odometry_consistent_frames(plane_sets: list[PlaneSet], T_odom_cams, params: MappingParams) -> np.ndarray:
     """(K,) bool: the frames of a window whose odometry agrees with the newest frame's (the newest always does).
 
@@ -314,9 +341,9 @@ def odometry_consistent_frames(plane_sets: list[PlaneSet], T_odom_cams, params: 
         if len(sel) == 0:
             continue
         T = T_last_odom @ check_transform(T_odom_cams[k], f"T_odom_cams[{k}]")
-        moved = plane_sets[k].subset(sel).transformed(T, "cam")
+        moved = _MovedGeometry(plane_sets[k], sel, T)
         paired = disagreeing = 0.0
-        for a in range(len(moved)):
+        for a in range(len(sel)):
             ca = moved.centroids[a]
             cos_ab = nb @ moved.normals[a]
             off = nb @ ca + db
