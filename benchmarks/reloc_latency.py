@@ -101,7 +101,7 @@ def _building_map(two_floors: bool):
     for k in a0:
         if k == "sample_ptr":
             arrays[k] = np.concatenate([a0[k], a1[k][1:] + a0[k][-1]])
-        elif k == "gravity":
+        elif k == "gravity" or np.ndim(a0[k]) == 0:  # per-set values (gravity, its tolerance): the first floor's
             arrays[k] = a0[k]
         else:
             arrays[k] = np.concatenate([a0[k], a1[k]])

@@ -44,3 +44,21 @@ def test_the_benchmark_scripts_refuse_a_bad_name_before_measuring():
         done = subprocess.run([sys.executable, str(root / "benchmarks" / script), "--name", "a/b"],
                               capture_output=True, text=True, timeout=120)
         assert done.returncode == 2 and "--name: expected a plain file stem" in done.stderr, (script, done.stderr)
+
+
+def test_the_latency_benchmarks_two_floor_map_holds_both_floors():
+    """reloc_latency.py's maps beyond one floor (1,055 planes) stack a second building 200 m away; its per-set values
+    (gravity and its tolerance) are the first floor's, not concatenated (a 0-d array broke the 2,000-plane run)."""
+    import numpy as np
+    from reloc_latency import _building_map
+    from sim.ground_truth import scene_planes
+    from sim.scenes import make_scene
+
+    _, one = _building_map(two_floors=False)
+    other, _ = scene_planes(make_scene("building", 1))
+    _, two = _building_map(two_floors=True)
+    assert len(two) == len(one) + len(other) > 2000
+    assert np.array_equal(two.normals[: len(one)], one.normals) and np.allclose(two.normals[len(one):], other.normals)
+    assert np.allclose(two.centroids[len(one):] - other.centroids, [200.0, 0.0, 0.0], atol=1e-9)
+    assert two.gravity_tolerance_rad == one.gravity_tolerance_rad and np.array_equal(two.gravity, one.gravity)
+    assert np.allclose(two.samples_of(len(one)) - np.float32([200.0, 0.0, 0.0]), other.samples_of(0), atol=1e-4)
