@@ -334,7 +334,7 @@ def test_fusion_median_is_numpys():
 
 
 def test_stacked_informations_are_each_planes_own():
-    from reloc.mapping.fusion import _information, _informations
+    from reloc.mapping.fusion import _informations
 
     rng = np.random.default_rng(5)
     covs = []
@@ -345,6 +345,6 @@ def test_stacked_informations_are_each_planes_own():
     covs[5] = np.full((4, 4), np.nan)  # unusable
     got = _informations(np.array(covs))
     assert got[2] is None and got[5] is None and _informations(np.zeros((0, 4, 4))) == []
-    for g, c in zip(got, covs):
-        want = _information(c)
-        assert (g is None and want is None) or np.array_equal(g, want)
+    for i, (g, c) in enumerate(zip(got, covs)):
+        if i not in (2, 5):
+            assert np.array_equal(g, np.linalg.pinv(0.5 * (c + c.T), rcond=1e-10, hermitian=True))

@@ -152,18 +152,10 @@ def _median(x: np.ndarray) -> float:
     return float(part[k]) if n % 2 else float((part[k - 1] + part[k]) / 2.0)
 
 
-def _information(cov: np.ndarray) -> np.ndarray | None:
-    """Information ``C^+`` of a plane's (n, d) covariance (4, 4), or None when the covariance is unusable."""
-    cov = np.asarray(cov, dtype=np.float64)
-    if not np.all(np.isfinite(cov)) or np.trace(cov) <= 0:
-        return None
-    cov = 0.5 * (cov + cov.T)
-    return _pinv_symmetric(cov, 1e-10)
-
-
 def _informations(covs: np.ndarray) -> list[np.ndarray | None]:
-    """:func:`_information` of each (4, 4) covariance of ``covs`` (N, 4, 4), the usable ones in one stacked
-    pseudo-inverse (per matrix the same figures as one at a time)."""
+    """The information ``C^+`` of each plane's (n, d) covariance of ``covs`` (N, 4, 4), symmetrized, or None where a
+    covariance is unusable (not finite, or zero trace); the usable ones in one stacked pseudo-inverse (per matrix the
+    same figures as one at a time)."""
     covs = np.asarray(covs, dtype=np.float64)
     out: list[np.ndarray | None] = [None] * len(covs)
     if len(covs) == 0:
@@ -256,7 +248,7 @@ class PlaneAccumulator:
         # loop over every plane, to the last bit).
         near = np.flatnonzero(self._alive_arr[:rows] & (self._normals_arr[:rows] @ n >= cos_max - 1e-9))
         for m in near.tolist():
-            if not self.alive[m] or float(self.normals[m] @ n) < cos_max:
+            if float(self.normals[m] @ n) < cos_max:
                 continue
             dist = np.abs(pts @ self.normals[m] + self.offsets[m])
             if len(dist) == 0 or _median(dist) > p.max_offset_m:
