@@ -30,13 +30,28 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-__all__ = ["PlaneSet"]
+__all__ = ["PlaneSet", "moved_geometry"]
 
 _ROW_FIELDS = ("normals", "offsets", "centroids", "counts", "radii", "areas", "covariances", "sums", "scatters")
 _ROW_SHAPES = {
     "normals": (3,), "offsets": (), "centroids": (3,), "counts": (), "radii": (), "areas": (),
     "covariances": (4, 4), "sums": (3,), "scatters": (3, 3),
 }
+
+
+def moved_geometry(T_a_b: np.ndarray, normals: np.ndarray, centroids: np.ndarray, covariances: np.ndarray,
+                   sample_points: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Planes' normals (N, 3), centroids (N, 3), (n, d) covariances (N, 4, 4) and float32 samples (M, 3) moved by
+    ``T_a_b``: what :meth:`PlaneSet.transformed` does to them, for a caller that needs no more (and no new set)."""
+    T = np.asarray(T_a_b, dtype=np.float64)
+    R, t = T[:3, :3], T[:3, 3]
+    # (n, d) -> (R n, d - (R n) . t) is linear: J = [[R, 0], [-t^T R, 1]].
+    J = np.zeros((4, 4))
+    J[:3, :3] = R
+    J[3, :3] = -t @ R
+    J[3, 3] = 1.0
+    return (normals @ R.T, centroids @ R.T + t, np.einsum("ij,njk,lk->nil", J, covariances, J),
+            (sample_points.astype(np.float64) @ R.T + t).astype(np.float32))
 
 
 @dataclass(frozen=True)
@@ -147,9 +162,9 @@ class PlaneSet:
         """
         T = np.asarray(T_a_b, dtype=np.float64)
         R, t = T[:3, :3], T[:3, 3]
-        normals = self.normals @ R.T
+        normals, centroids, covs, samples = moved_geometry(T, self.normals, self.centroids, self.covariances,
+                                                           self.sample_points)
         offsets = self.offsets - normals @ t
-        centroids = self.centroids @ R.T + t
         counts = self.counts.astype(np.float64)
         sums = self.sums @ R.T + counts[:, None] * t
         # sum (R p + t)(R p + t)^T = R S R^T + R s t^T + t s^T R^T + N t t^T
@@ -160,13 +175,6 @@ class PlaneSet:
             + t[None, :, None] * Rs[:, None, :]
             + counts[:, None, None] * np.outer(t, t)[None]
         )
-        # (n, d) -> (R n, d - (R n) . t) is linear: J = [[R, 0], [-t^T R, 1]].
-        J = np.zeros((4, 4))
-        J[:3, :3] = R
-        J[3, :3] = -t @ R
-        J[3, 3] = 1.0
-        covs = np.einsum("ij,njk,lk->nil", J, self.covariances, J)
-        samples = (self.sample_points.astype(np.float64) @ R.T + t).astype(np.float32)
         gravity = None if self.gravity is None else R @ self.gravity
         return replace(
             self, normals=normals, offsets=offsets, centroids=centroids, sums=sums, scatters=scatters,
