@@ -5,7 +5,12 @@ commit (and whether the tree had local changes), the resolved parameters of the 
 can always be traced back to the code and settings that produced it.
 
 Benchmarks are scripts, not an installed package: run them from the repository root as
-``python benchmarks/<name>.py``; this module is imported as ``_common`` from the script's own folder.
+``python benchmarks/<name>.py``; this module is imported as ``_common`` from the script's own folder, before
+anything of the project. Importing it puts this checkout's root first on ``sys.path``, so the code measured is the
+code whose commit the results name, also when the script is run from a second checkout (a ``git worktree`` of an
+older commit, for a before/after comparison) with the virtual environment of the first, whose editable install
+would otherwise supply ``reloc`` and ``sim`` from the first checkout. The results record where ``reloc`` came from
+(``git.code_root``) and whether that is this checkout (``git.code_is_checkout``).
 """
 
 from __future__ import annotations
@@ -27,6 +32,7 @@ import numpy as np
 __all__ = [
     "REPO_ROOT",
     "RESULTS_DIR",
+    "code_root",
     "machine_info",
     "git_info",
     "jsonable",
@@ -39,6 +45,8 @@ __all__ = [
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
 RESULTS_DIR = REPO_ROOT / "benchmarks" / "results"
+if str(REPO_ROOT) not in sys.path[:1]:
+    sys.path.insert(0, str(REPO_ROOT))
 
 
 def _cpu_model() -> str:
@@ -75,8 +83,17 @@ def machine_info() -> dict:
     return info
 
 
+def code_root() -> Path | None:
+    """The folder the ``reloc`` package was imported from (its parent), or None when it is not imported."""
+    mod = sys.modules.get("reloc")
+    path = getattr(mod, "__file__", None)
+    return Path(path).resolve().parents[1] if path else None
+
+
 def git_info(root: Path = REPO_ROOT) -> dict:
-    """``{"commit": sha or None, "dirty": bool or None}`` of the repository at ``root``."""
+    """``{"commit": sha or None, "dirty": bool or None, "code_root": path or None, "code_is_checkout": bool or
+    None}`` of the repository at ``root``: the last two say where ``reloc`` was imported from and whether that is
+    ``root`` (when it is not, the commit does not describe the code that ran)."""
 
     def run(*args: str) -> str | None:
         try:
@@ -87,7 +104,10 @@ def git_info(root: Path = REPO_ROOT) -> dict:
 
     commit = run("rev-parse", "HEAD")
     status = run("status", "--porcelain", "--untracked-files=no")
-    return {"commit": commit, "dirty": None if status is None else bool(status)}
+    code = code_root()
+    return {"commit": commit, "dirty": None if status is None else bool(status),
+            "code_root": None if code is None else str(code),
+            "code_is_checkout": None if code is None else code == Path(root).resolve()}
 
 
 def jsonable(obj: Any) -> Any:
@@ -171,12 +191,16 @@ def write_results(name: str, *, params: dict, results: Any, out_dir: Path | None
     from reloc.atomic import atomic_write_text
 
     path = (out_dir or RESULTS_DIR) / f"{results_name(name)}.json"
+    git = git_info()
+    if git["code_is_checkout"] is False:
+        print(f"warning: reloc was imported from {git['code_root']}, not from {REPO_ROOT} whose commit the results "
+              "name", file=sys.stderr)
     payload = {
         "benchmark": name,
         "date": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
         "command": " ".join([Path(sys.argv[0]).name, *sys.argv[1:]]) if sys.argv else "",
         "machine": machine_info(),
-        "git": git_info(),
+        "git": git,
         "params": params,
         "results": results,
     }

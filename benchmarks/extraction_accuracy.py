@@ -59,8 +59,9 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-import plane_baselines as pb  # noqa: E402
+# _common first: it puts this checkout's root on sys.path before anything of the project is imported.
 from _common import parse_overrides, print_table, results_name, write_results  # noqa: E402
+import plane_baselines as pb  # noqa: E402
 
 from reloc.planes import plane_errors  # noqa: E402
 

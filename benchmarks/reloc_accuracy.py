@@ -35,7 +35,6 @@ from dataclasses import asdict, replace
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from _common import parse_overrides, print_table, results_name, write_results  # noqa: E402
 

@@ -3,32 +3,34 @@ slow NumPy reference renderer side by side, and frames per second for writing a 
 
     .venv/bin/python benchmarks/sim_speed.py [--frames 30] [--write-frames 100]
 
-Prints a table and writes benchmarks/results/sim_speed.json. Kernels are warmed up before anything is timed.
+Prints a table and writes benchmarks/results/sim_speed.json (``--name`` for another stem) with the date, machine
+and commit. Kernels are warmed up before anything is timed.
 """
 
 from __future__ import annotations
 
 import argparse
-import json
-import platform
+import sys
 import tempfile
 import time
 from pathlib import Path
 
 import numpy as np
 
-from reloc._numba import warm_up
-from reloc.atomic import atomic_write_text
-from sim import make_camera
-from sim.cameras import PRESETS, preset
-from sim.noise import NOISE_NAMES, make_noise
-from sim.reference import reference_render
-from sim.render import render
-from sim.scenes import SCENE_NAMES, make_scene
-from sim.trajectories import random_views
-from sim.writer import write_sequence
+sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-RESULTS = Path(__file__).resolve().parent / "results" / "sim_speed.json"
+# _common first: it puts this checkout's root on sys.path before anything of the project is imported.
+from _common import results_name, write_results  # noqa: E402
+
+from reloc._numba import warm_up  # noqa: E402
+from sim import make_camera  # noqa: E402
+from sim.cameras import PRESETS, preset  # noqa: E402
+from sim.noise import NOISE_NAMES, make_noise  # noqa: E402
+from sim.reference import reference_render  # noqa: E402
+from sim.render import render  # noqa: E402
+from sim.scenes import SCENE_NAMES, make_scene  # noqa: E402
+from sim.trajectories import random_views  # noqa: E402
+from sim.writer import write_sequence  # noqa: E402
 
 
 def _stats(times_s: list[float]) -> dict:
@@ -40,8 +42,12 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--frames", type=int, default=30, help="Viewpoints timed per scene and camera.")
     ap.add_argument("--write-frames", type=int, default=100, help="Frames of the sequence-writing run.")
-    ap.add_argument("--out", type=Path, default=RESULTS)
+    ap.add_argument("--name", default="sim_speed", help="Result file stem in benchmarks/results/.")
     args = ap.parse_args()
+    try:
+        results_name(args.name)
+    except ValueError as exc:
+        ap.error(str(exc))
 
     info = warm_up(("sim._render_kernels", "sim._noise_kernels"))
     rows = []
@@ -116,14 +122,11 @@ def main() -> None:
             label = f"{scene_name}, {cam}, kinect noise, robot"
             print(f"{label:<40}{s.n_frames:>7}{dt:>9.2f}{s.n_frames / dt:>10.1f}")
 
-    result = {
-        "benchmark": "sim_speed",
-        "machine": {"python": platform.python_version(), "processor": platform.processor() or platform.machine()},
-        "render": rows, "render_baseline": baseline, "noise": noise_rows, "write_sequence": write_rows,
-    }
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    atomic_write_text(args.out, json.dumps(result, indent=1) + "\n")
-    print(f"\nwrote {args.out}")
+    path = write_results(
+        args.name, params={"frames": args.frames, "write_frames": args.write_frames},
+        results={"render": rows, "render_baseline": baseline, "noise": noise_rows, "write_sequence": write_rows},
+    )
+    print(f"\nwrote {path}")
 
 
 if __name__ == "__main__":

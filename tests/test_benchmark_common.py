@@ -40,7 +40,7 @@ def test_the_benchmark_scripts_refuse_a_bad_name_before_measuring():
     import subprocess
 
     root = Path(__file__).resolve().parents[1]
-    for script in ("reloc_accuracy.py", "extraction_accuracy.py", "extraction_speed.py"):
+    for script in ("reloc_accuracy.py", "extraction_accuracy.py", "extraction_speed.py", "sim_speed.py"):
         done = subprocess.run([sys.executable, str(root / "benchmarks" / script), "--name", "a/b"],
                               capture_output=True, text=True, timeout=120)
         assert done.returncode == 2 and "--name: expected a plain file stem" in done.stderr, (script, done.stderr)
@@ -62,3 +62,49 @@ def test_the_latency_benchmarks_two_floor_map_holds_both_floors():
     assert np.allclose(two.centroids[len(one):] - other.centroids, [200.0, 0.0, 0.0], atol=1e-9)
     assert two.gravity_tolerance_rad == one.gravity_tolerance_rad and np.array_equal(two.gravity, one.gravity)
     assert np.allclose(two.samples_of(len(one)) - np.float32([200.0, 0.0, 0.0]), other.samples_of(0), atol=1e-4)
+
+
+def test_a_benchmark_measures_the_code_of_its_own_checkout(tmp_path):
+    """Run from a second checkout (an old commit's worktree) with this venv, whose editable install points at the
+    first, a script must import that checkout's ``reloc``: otherwise the results name one commit and measure
+    another. A stand-in checkout whose ``reloc`` says where it is shows which one was imported."""
+    import shutil
+    import subprocess
+
+    bench = tmp_path / "benchmarks"
+    bench.mkdir()
+    shutil.copy(Path(__file__).resolve().parents[1] / "benchmarks" / "_common.py", bench)
+    (tmp_path / "reloc").mkdir()
+    (tmp_path / "reloc" / "__init__.py").write_text("WHERE = 'stand-in checkout'\n")
+    (bench / "probe.py").write_text(
+        "import _common\nimport reloc\nprint(reloc.WHERE)\ninfo = _common.git_info()\n"
+        "print(info['code_is_checkout'], info['code_root'])\n"
+    )
+    done = subprocess.run([sys.executable, str(bench / "probe.py")], capture_output=True, text=True, timeout=60,
+                          cwd=str(tmp_path.parent))
+    assert done.returncode == 0, done.stderr
+    where, info = done.stdout.splitlines()
+    assert where == "stand-in checkout"
+    assert info == f"True {tmp_path.resolve()}"
+
+
+def test_the_benchmark_scripts_import_common_before_the_project():
+    """``_common`` sets the path (above), so it must come before the first import of the project in every script."""
+    import ast
+
+    project = ("reloc", "sim", "drivers", "firmware_bridge", "plane_baselines", "reloc_latency", "test_")
+    folder = Path(__file__).resolve().parents[1] / "benchmarks"
+    scripts = [p for p in sorted(folder.glob("*.py")) if p.name not in ("_common.py", "plane_baselines.py")]
+    assert len(scripts) >= 10
+    for path in scripts:
+        first_common, first_project = None, None
+        nodes = [n for n in ast.walk(ast.parse(path.read_text())) if isinstance(n, (ast.Import, ast.ImportFrom))]
+        for node in sorted(nodes, key=lambda n: n.lineno):
+            names = [a.name for a in node.names] if isinstance(node, ast.Import) else [node.module or ""]
+            if "_common" in names and first_common is None:
+                first_common = node.lineno
+            if any(n.split(".")[0] in project or n.startswith("test_") for n in names) and first_project is None:
+                first_project = node.lineno
+        assert first_common is not None, f"{path.name} does not import _common"
+        assert first_project is None or first_common < first_project, (
+            f"{path.name}: line {first_project} imports the project before _common (line {first_common})")
