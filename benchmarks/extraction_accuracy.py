@@ -615,7 +615,7 @@ def run_protocol2(scenes: list[str], noises: list[str], n_frames: int, seed: int
 
 def _protocol2_frames(frames, scene, index_of, params, extract_planes, planes_in_camera, min_gt_fraction) -> dict:
     n_det = n_tp = n_under = n_detectable = n_recalled = n_over = n_frag = n_clutter = 0
-    coverage, angles, offsets, times, ref_angles, ref_offsets = [], [], [], [], [], []
+    coverage, purity, angles, offsets, times, ref_angles, ref_offsets = [], [], [], [], [], [], []
     clean_angles, clean_offsets = [], []  # true positives that are not under-segmented and hold >= min_gt pixels
     for frame in frames:
         t0 = time.perf_counter()
@@ -638,6 +638,7 @@ def _protocol2_frames(frames, scene, index_of, params, extract_planes, planes_in
         n_over += int(((m["fragments"] >= 2) & det).sum())
         n_frag += int(m["fragments"][m["recalled"] & det].sum())
         coverage.extend(m["coverage"][m["recalled"] & det].tolist())
+        purity.extend(m["purity"][m["tp"]].tolist())
         for i in np.flatnonzero(m["tp"]):
             g = index_of[int(m["owner"][i])]
             truth = np.r_[gt_n[g], gt_d[g]]
@@ -665,6 +666,7 @@ def _protocol2_frames(frames, scene, index_of, params, extract_planes, planes_in
         "fragments_per_recalled": n_frag / n_recalled if n_recalled else float("nan"),
         "under_segmented": n_under / n_det if n_det else float("nan"),
         "coverage_mean": _mean(coverage),
+        "purity_mean": _mean(purity), "purity_p05": _percentile(purity, 5),
         "angle_deg_mean": _mean(angles), "angle_deg_median": _percentile(angles, 50),
         "angle_deg_p95": _percentile(angles, 95),
         "offset_m_mean": _mean(offsets), "offset_m_median": _percentile(offsets, 50),
@@ -688,21 +690,22 @@ def _unlabelled_share(det_labels: np.ndarray, n_det: int, gt_labels: np.ndarray)
 
 def _print_protocol2(rows: list[dict], n_frames: int, min_gt_fraction: float) -> None:
     headers = ["scene", "noise", "merge", "planes/fr", "P", "clutter", "P lab", "R", "over", "frag/GT", "under",
-               "cover", "ang med", "ang p95", "off med [mm]", "off p95 [mm]", "clean ang p95", "clean off p95 [mm]",
+               "cover", "purity", "ang med", "ang p95", "off med [mm]", "off p95 [mm]", "clean ang p95", "clean off p95 [mm]",
                "ref ang p95", "ref off p95 [mm]", "ms/fr"]
     table = [[r["scene"], r["noise"], "on" if r["merge"] else "off (VR-NM)", r["planes_per_frame"], r["precision"],
               r["on_unlabelled"], r["precision_labelled"], r["recall"], r["over_segmented"],
-              r["fragments_per_recalled"], r["under_segmented"], r["coverage_mean"], r["angle_deg_median"],
+              r["fragments_per_recalled"], r["under_segmented"], r["coverage_mean"], r["purity_mean"], r["angle_deg_median"],
               r["angle_deg_p95"], r["offset_m_median"] * 1e3, r["offset_m_p95"] * 1e3, r["clean_angle_deg_p95"],
               r["clean_offset_m_p95"] * 1e3, r["ref_angle_deg_p95"],
               r["ref_offset_m_p95"] * 1e3, r["extract_ms_mean"]] for r in rows]
     print_table(headers, table, floatfmt=["", "", "", ".1f", ".3f", ".3f", ".3f", ".3f", ".3f", ".2f", ".3f", ".3f",
-                                          ".3f", ".3f", ".2f", ".2f", ".3f", ".2f", ".3f", ".2f", ".1f"],
+                                          ".3f", ".3f", ".3f", ".2f", ".2f", ".3f", ".2f", ".3f", ".2f", ".1f"],
                 title=f"Protocol 2: simulated frames ({n_frames} random views per scene and noise), detections "
                       f"matched by majority of pixels; recall over GT planes >= {min_gt_fraction:.1%} of the image; "
                       "angles in deg. P = true positives / detections; clutter = share of detections on unlabelled "
                       "pixels (the sim's cylinders and spheres, whose flat caps are real planes, and flying pixels); "
-                      "P lab = precision without those; clean = matched detections neither under-segmented nor smaller "
+                      "P lab = precision without those; purity = mean share of a true positive's pixels on its own plane (the "
+                      "rest: pixels of other surfaces it took, e.g. along the line where it meets them); clean = matched detections neither under-segmented nor smaller "
                       "than the recall threshold; ref = plain PCA of each matched detection's own true pixels "
                       "(no outliers, no weights: a yardstick, not a limit); ms/fr is extract_planes after warm-up, not a speed benchmark")
 

@@ -180,3 +180,37 @@ def test_protocol1_ray_noise_moves_points_along_their_rays():
     # The oracle on this data lands close to the truth (it is the limit the table quotes).
     angle_deg, offset_m = plane_errors(ea._oracle(sp), sp.plane)
     assert angle_deg < 0.2 and offset_m < 0.01
+
+
+def test_protocol2_reports_the_purity_of_its_true_positives():
+    """A wall detection that also took a row of the floor: purity 60 / 70 (its own pixels over all of its pixels),
+    a clean floor detection 1.0; the frame's mean and 5th percentile over the true positives."""
+    from types import SimpleNamespace
+
+    H, W = 10, 10
+    gt = np.full((H, W), 1)
+    gt[6:, :] = 2  # rows 6-9: the floor (id 2); rows 0-5: the wall (id 1)
+    det = np.where(gt == 1, 0, 1)
+    det[6, :] = 0  # the wall detection took the floor's first row: 60 + 10 pixels, 60 its own
+    det[9, :] = -1  # unassigned
+    frame = SimpleNamespace(depth_m=np.full((H, W), 2.0), labels=gt, T_world_cam=np.eye(4),
+                            intrinsics=SimpleNamespace(fx=10.0, fy=10.0, cx=4.5, cy=4.5))
+
+    class Planes:  # the parts of a PlaneSet that protocol 2 reads
+        labels = det
+        normals = np.array([[0.0, 0.0, -1.0], [0.0, -1.0, 0.0]])
+        offsets = np.array([2.0, 1.0])
+
+        def __len__(self):
+            return 2
+
+    def extract(_frame, _params):
+        return SimpleNamespace(planes=Planes())
+
+    def in_camera(_scene, _T):
+        return np.array([[0.0, 0.0, -1.0], [0.0, -1.0, 0.0]]), np.array([2.0, 1.0])
+
+    stats = ea._protocol2_frames([frame], None, {1: 0, 2: 1}, None, extract, in_camera, 0.01)
+    assert stats["precision"] == 1.0
+    assert stats["purity_mean"] == pytest.approx((60 / 70 + 1.0) / 2)
+    assert stats["purity_p05"] == pytest.approx(60 / 70 + 0.05 * (1.0 - 60 / 70))
