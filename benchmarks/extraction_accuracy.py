@@ -690,11 +690,12 @@ def _unlabelled_share(det_labels: np.ndarray, n_det: int, gt_labels: np.ndarray)
 
 def _print_protocol2(rows: list[dict], n_frames: int, min_gt_fraction: float) -> None:
     headers = ["scene", "noise", "merge", "planes/fr", "P", "clutter", "P lab", "R", "over", "frag/GT", "under",
-               "cover", "purity", "ang med", "ang p95", "off med [mm]", "off p95 [mm]", "clean ang p95", "clean off p95 [mm]",
-               "ref ang p95", "ref off p95 [mm]", "ms/fr"]
+               "cover", "purity", "ang med", "ang p95", "off med [mm]", "off p95 [mm]", "clean ang p95",
+               "clean off p95 [mm]", "ref ang p95", "ref off p95 [mm]", "ms/fr"]
     table = [[r["scene"], r["noise"], "on" if r["merge"] else "off (VR-NM)", r["planes_per_frame"], r["precision"],
               r["on_unlabelled"], r["precision_labelled"], r["recall"], r["over_segmented"],
-              r["fragments_per_recalled"], r["under_segmented"], r["coverage_mean"], r["purity_mean"], r["angle_deg_median"],
+              r["fragments_per_recalled"], r["under_segmented"], r["coverage_mean"], r["purity_mean"],
+              r["angle_deg_median"],
               r["angle_deg_p95"], r["offset_m_median"] * 1e3, r["offset_m_p95"] * 1e3, r["clean_angle_deg_p95"],
               r["clean_offset_m_p95"] * 1e3, r["ref_angle_deg_p95"],
               r["ref_offset_m_p95"] * 1e3, r["extract_ms_mean"]] for r in rows]
@@ -704,9 +705,9 @@ def _print_protocol2(rows: list[dict], n_frames: int, min_gt_fraction: float) ->
                       f"matched by majority of pixels; recall over GT planes >= {min_gt_fraction:.1%} of the image; "
                       "angles in deg. P = true positives / detections; clutter = share of detections on unlabelled "
                       "pixels (the sim's cylinders and spheres, whose flat caps are real planes, and flying pixels); "
-                      "P lab = precision without those; purity = mean share of a true positive's pixels on its own plane (the "
-                      "rest: pixels of other surfaces it took, e.g. along the line where it meets them); clean = matched detections neither under-segmented nor smaller "
-                      "than the recall threshold; ref = plain PCA of each matched detection's own true pixels "
+                      "P lab = precision without those; purity = mean share of a true positive's pixels on its own "
+                      "plane (the rest: pixels of other surfaces it took, e.g. along the line where it meets them); "
+                      "clean = matched detections neither under-segmented nor smaller than the recall threshold; ref = plain PCA of each matched detection's own true pixels "
                       "(no outliers, no weights: a yardstick, not a limit); ms/fr is extract_planes after warm-up, not a speed benchmark")
 
 
