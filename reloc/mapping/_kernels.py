@@ -8,6 +8,10 @@ import math
 import numpy as np
 
 from reloc._numba import njit, register_warmup
+from reloc.matching._kernels import _lower_bound
+
+# numba caches a kernel with the kernels it calls compiled in, keyed on this file's stamp only: a change to
+# _lower_bound in matching/_kernels goes with an edit here.
 
 _OFF = 1 << 20
 _MASK = (1 << 21) - 1
@@ -60,19 +64,6 @@ def carve_free_space(depth, fx, fy, cx, cy, R, t, stride, voxel, margin, max_ran
 
 
 @njit
-def _lower_bound(keys, key):
-    lo = 0
-    hi = keys.shape[0]
-    while lo < hi:
-        mid = (lo + hi) >> 1
-        if keys[mid] < key:
-            lo = mid + 1
-        else:
-            hi = mid
-    return lo
-
-
-@njit
 def count_touching(keys_q, keys_m, offsets):
     """How many of the voxel keys ``keys_q`` have a key of the sorted array ``keys_m`` among their neighbours
     (``keys_q[i] + offsets[o]``: keys are packed so that offsets add, see ``fusion.voxel_keys``)."""
@@ -81,7 +72,7 @@ def count_touching(keys_q, keys_m, offsets):
     for i in range(keys_q.shape[0]):
         for o in range(offsets.shape[0]):
             key = keys_q[i] + offsets[o]
-            at = _lower_bound(keys_m, key)
+            at = _lower_bound(keys_m, 0, nm, key)
             if at < nm and keys_m[at] == key:
                 n += 1
                 break
