@@ -20,11 +20,26 @@ __all__ = ["read_depth_png_raw", "read_depth_png", "write_depth_png", "write_lab
 MAX_PIXELS = 4096 * 4096
 
 
+def _png_header_size(path) -> tuple[int, int] | None:
+    """``(width, height)`` from a PNG's IHDR chunk, or None when the file does not start like a PNG."""
+    with open(path, "rb") as f:
+        head = f.read(24)
+    if len(head) < 24 or head[:8] != b"\x89PNG\r\n\x1a\n" or head[12:16] != b"IHDR":
+        return None
+    return struct.unpack(">II", head[16:24])
+
+
 def read_depth_png_raw(path: str | os.PathLike) -> np.ndarray:
     """The raw (H, W) uint16 values of a 16-bit single-channel PNG. Raises ValueError naming the file."""
     from PIL import Image, UnidentifiedImageError
 
     try:
+        # The size in the header is checked before Pillow opens the file: Pillow warns (DecompressionBombWarning)
+        # from 89 M pixels on, a warning per bad file in a live loop's log, where this limit is far lower anyway.
+        size = _png_header_size(path)
+        if size is not None and size[0] * size[1] > MAX_PIXELS:
+            raise ValueError(f"{path}: image is {size[0]}x{size[1]}, larger than any depth camera's "
+                             f"({MAX_PIXELS} pixels at most)")
         with Image.open(path) as img:
             if img.width * img.height > MAX_PIXELS:  # checked before decoding anything
                 raise ValueError(f"{path}: image is {img.width}x{img.height}, larger than any depth camera's "

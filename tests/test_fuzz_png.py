@@ -10,10 +10,12 @@ from __future__ import annotations
 import io
 import struct
 import tempfile
+import warnings
 import zlib
 from pathlib import Path
 
 import numpy as np
+import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 from PIL import Image
@@ -124,6 +126,17 @@ def test_header_claiming_billions_of_pixels_is_refused_before_decoding(tmp_path)
     assert outcome(lambda: read_depth_png(p, 1000.0), names="bomb.png") == "error"
     p.write_bytes(raw_png(12_000, 12_000, 16, 0, b""))  # below PIL's bomb limit: a 288 MB decode before
     assert outcome(lambda: read_depth_png(p, 1000.0), names="bomb.png", timeout_s=5) == "error"
+
+
+def test_huge_header_is_refused_without_pillows_bomb_warning(tmp_path):
+    # 12,000 x 12,000 is above Pillow's warning limit (89 M pixels): the header check comes first, so no warning
+    # reaches a live loop's log, only the error naming the file and the size.
+    p = tmp_path / "bomb.png"
+    p.write_bytes(raw_png(12_000, 12_000, 16, 0, b""))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        with pytest.raises(ValueError, match=r"bomb\.png: image is 12000x12000"):
+            read_depth_png(p, 1000.0)
 
 
 def test_codec_value_errors_name_the_file(tmp_path):
