@@ -966,3 +966,51 @@ def test_symmetric_solve_and_subsample_step_match_numpy():
     for n in (0, 1, 255, 256, 257, 512, 513, 10_000):
         k = kvf.pow2_step(n, 256)
         assert k & (k - 1) == 0 and n / k <= 256 and (k == 1 or n / (k // 2) > 256), (n, k)
+
+
+def test_layer_candidates_and_blocks_match_numpy():
+    from reloc.extraction import _kernels_finalize as kf
+
+    rng = np.random.default_rng(7)
+    n = 12
+    normals = rng.normal(size=(n, 3))
+    normals[:6] = [0.0, 0.0, -1.0] + 0.02 * rng.normal(size=(6, 3))  # a few nearly parallel planes
+    normals /= np.linalg.norm(normals, axis=1, keepdims=True)
+    planes = np.column_stack([normals, rng.uniform(1.0, 6.0, n)])
+    counts = rng.integers(0, 500, n).astype(np.int64)
+    counts[3] = counts[4]  # a tie, broken by index
+    counts[7] = 0  # a plane without points
+    sums = rng.uniform(-1, 1, (n, 3)) * counts[:, None]
+    sums[:, 2] = rng.uniform(1.0, 6.0, n) * counts
+    cos_max, k, coeff = np.cos(np.radians(8.0)), 4.0, 0.01
+    out = np.empty((200, 2), np.int64)
+    got = kf.layer_candidates(planes, counts, sums, cos_max, k, 2, coeff, out)
+    want = []
+    for i in range(n):
+        for j in range(n):
+            if i == j or counts[i] <= 0 or counts[j] <= 0 or (counts[j], -j) > (counts[i], -i):
+                continue
+            c = sums[j] / counts[j]
+            if planes[i, :3] @ planes[j, :3] >= cos_max and abs(planes[i, :3] @ c + planes[i, 3]) <= k * coeff * max(
+                    c[2], 0.1) ** 2:
+                want.append((i, j))
+    assert got == len(want) > 0 and [tuple(r) for r in out[:got]] == want
+
+    m, width, height, block = 400, 20, 12, 2
+    point_plane = rng.integers(-1, 5, m).astype(np.int32)
+    table = np.array([2, -1, 0, 3, 1], np.int32)
+    pix = rng.permutation(width * height).astype(np.int32)
+    src = rng.integers(0, width * height, m).astype(np.int32)
+    bit_of = np.array([0, -1, 1, 2], np.int64)
+    n_bw = width // block
+    for src_is_pixel in (True, False):
+        masks = np.zeros(n_bw * (height // block), np.uint64)
+        kf.layer_blocks(point_plane, table, m, src, src_is_pixel, pix, width, block, n_bw, bit_of, masks)
+        want = np.zeros_like(masks)
+        for j in range(m):
+            if point_plane[j] < 0 or table[point_plane[j]] < 0 or bit_of[table[point_plane[j]]] < 0:
+                continue
+            k = src[j] if src_is_pixel else pix[src[j]]
+            want[(k // width) // block * n_bw + (k % width) // block] |= np.uint64(1) << np.uint64(
+                bit_of[table[point_plane[j]]])
+        np.testing.assert_array_equal(masks, want)

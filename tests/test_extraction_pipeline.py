@@ -159,6 +159,43 @@ def test_a_far_stereo_wall_is_not_dropped_as_a_bevel():
     assert share_old < 0.5 and ang_old > 2.0, (share_old, ang_old)
 
 
+@pytest.mark.parametrize("noise_seed", [0, 1])
+def test_layers_of_a_far_stereo_wall_become_one_plane(noise_seed):
+    """A wall 5.6 m away facing the camera under stereo noise (apartment, robot trajectory 3, frame 320): the
+    disparity steps (1/8 px, 12-13 cm of depth there) put its points on a few depth levels, and without the layer
+    merge it comes out as two parallel planes through the same pixels, one 13-15 cm off (the default). With it
+    (``layer_min_shared`` 0.5) it is one plane over all its pixels, within 1 deg and 3 cm (the steps' mean)."""
+    sim = pytest.importorskip("sim")
+    from sim.ground_truth import planes_in_camera
+    from sim.scenes import make_scene
+    from sim.trajectories import make_trajectory
+
+    from reloc.evaluation.suite import EvalSpec, extraction_for_sensor
+
+    scene = make_scene("apartment")
+    pose = make_trajectory("robot", scene, 400, 3)[320:321]
+    f = sim.simulate_frames(scene=scene, trajectory=pose, noise="stereo", camera="oak-d", seed=noise_seed)[0]
+    h, w = f.depth_m.shape
+    params = extraction_for_sensor(EvalSpec(noise="stereo", camera="oak-d", width=w, height=h))
+    normals, offsets = planes_in_camera(scene, f.T_world_cam)
+    row = scene.index_of(30)
+    gt = np.r_[normals[row], offsets[row]]
+    gt = -gt if gt[3] < 0 else gt
+    wall = f.labels == 30
+    assert wall.sum() > 20000 and 5.0 < gt[3] < 6.0
+
+    def covering(p):
+        ps = PlaneExtractor(p).extract(f).planes
+        share = [int(((ps.labels == i) & wall).sum()) / wall.sum() for i in range(len(ps))]
+        return [(s, *plane_errors(np.r_[ps.normals[i], ps.offsets[i]], gt)) for i, s in enumerate(share) if s >= 0.2]
+
+    assert params.layer_min_shared == 0.0  # the default: no layer merge
+    layers = covering(params)
+    assert len(layers) == 2 and max(off for _, _, off in layers) > 0.1, layers
+    (share, ang, off), = covering(params.with_(layer_min_shared=0.5))
+    assert share > 0.95 and ang < 1.0 and off < 0.03, (share, ang, off)
+
+
 def test_noise_free_frame_fits_within_a_millimetre():
     depth, labels, planes = _box_room(noise_coeff=0.0, R=_rot([1.0, 0.2, 0.0], 0.3))
     ps = extract_planes(DepthFrame(depth, K, 0), ExtractionParams()).planes

@@ -1130,6 +1130,55 @@ def support_moments(sup, refs, table, n_out, counts, sums, scatters):
 
 
 @njit(error_model="numpy")
+def layer_candidates(planes, counts, sums, cos_max, k_sigmas, power, coeff, out):
+    """Pairs ``(i, j)`` of planes that may be layers of one surface: both with points, ``j`` not larger (by
+    count; ties by index), normals within ``acos(cos_max)``, and ``j``'s centroid within ``k_sigmas`` depth sigmas
+    (at its depth) of ``i``'s plane. Rows into ``out`` (cap, 2); returns how many (more than cap: cut)."""
+    n = planes.shape[0]
+    c = 0
+    for i in range(n):
+        if counts[i] <= 0:
+            continue
+        for j in range(n):
+            if j == i or counts[j] <= 0 or counts[j] > counts[i] or (counts[j] == counts[i] and j < i):
+                continue
+            if planes[i, 0] * planes[j, 0] + planes[i, 1] * planes[j, 1] + planes[i, 2] * planes[j, 2] < cos_max:
+                continue
+            cx = sums[j, 0] / counts[j]
+            cy = sums[j, 1] / counts[j]
+            cz = sums[j, 2] / counts[j]
+            off = abs(planes[i, 0] * cx + planes[i, 1] * cy + planes[i, 2] * cz + planes[i, 3])
+            zz = cz if cz > MIN_DEPTH else MIN_DEPTH
+            if off > k_sigmas * _sigma_z(zz, power, coeff):
+                continue
+            if c < out.shape[0]:
+                out[c, 0] = i
+                out[c, 1] = j
+            c += 1
+    return c
+
+
+@njit(error_model="numpy")
+def layer_blocks(point_plane, table, m, sorted_src, src_is_pixel, pix, width, block, n_blocks_w, bit_of, masks):
+    """Which of the planes with a bit (``bit_of[plane]`` >= 0, at most 64) have a supporting point in each
+    ``block x block`` pixel block: ``masks`` (blocks,) uint64, zeroed by the caller, OR-ed here. Point ``j`` is on
+    plane ``table[point_plane[j]]`` at pixel ``sorted_src[j]`` (``src_is_pixel``) or ``pix[sorted_src[j]]``."""
+    for j in range(m):
+        p = point_plane[j]
+        if p < 0:
+            continue
+        q = table[p]
+        if q < 0:
+            continue
+        b = bit_of[q]
+        if b < 0:
+            continue
+        k = sorted_src[j] if src_is_pixel else pix[sorted_src[j]]
+        blk = (k // width) // block * n_blocks_w + (k % width) // block
+        masks[blk] |= np.uint64(1) << np.uint64(b)
+
+
+@njit(error_model="numpy")
 def remap_points(point_plane, m, table):
     """``point_plane[:m]`` renumbered through ``table`` (-1 stays -1)."""
     for j in range(m):
@@ -1209,6 +1258,11 @@ def _warmup() -> None:
     plane_stats(pts, pp, m, counts, sums, scat)
     support_moments(np.ones((1, 10)), np.zeros((1, 3)), np.array([0], np.int32), 1, counts, sums, scat)
     remap_points(pp, m, np.array([0], np.int32))
+    layer_candidates(np.vstack([planes, planes]), np.array([5, 3], np.int64), np.ones((2, 3)), 0.99, 4.0, 2,
+                     1.425e-3, np.empty((4, 2), np.int64))
+    for src_is_pixel in (False, True):
+        layer_blocks(pp, np.array([0], np.int32), m, np.arange(m).astype(np.int32) % 20, src_is_pixel,
+                     np.arange(20).astype(np.int32), 5, 2, 3, np.zeros(1, np.int64), np.zeros(6, np.uint64))
     labels = np.empty(20, np.int32)
     cent = sums / max(counts[0], 1)
     for stride in (1, 2):

@@ -39,6 +39,9 @@ def assemble_plane_set(
     frame: str = "cam",
     workspace: Workspace | None = None,
     gravity_tolerance_rad: float = 0.0,
+    layer_min_shared: float = 0.0,
+    layer_max_angle_rad: float = np.radians(8.0),
+    layer_offset_sigmas: float = 4.0,
 ) -> PlaneSet:
     """The plane set of the merged planes.
 
@@ -48,6 +51,7 @@ def assemble_plane_set(
     ``min_plane_area_m2`` are dropped; the rest are ordered by point count (largest first).
     ``pixels`` (M,) int32 (the flat pixel index of each input point) and ``image_shape`` make the label image;
     a grid made from the image itself (``grid.source_is_pixel``) needs no ``pixels``.
+    With a label image and ``layer_min_shared`` > 0, layers of one surface are merged first (:func:`_merge_layers`).
     """
     ws = fresh(workspace)
     n_all = len(merged)
@@ -85,12 +89,27 @@ def assemble_plane_set(
             np.zeros((1, 10)), ws.get("rf_scratch", (kf.SCRATCH_ROWS, max(int(grid.counts.max()), 1)), np.float64),
         )
         kf.plane_stats(grid.points, point_plane, m, counts, sums, scatters)
+    plane_of_voxel = merged.plane_of_voxel
+    covariances = merged.covariances
+    h, w = image_shape if image_shape is not None else (1, 1)
+    if labels is not None and pixels is None and not grid.source_is_pixel:
+        raise ValueError("pixels: needed with image_shape to make the label image")
+    src_is_pixel = grid.source_is_pixel and pixels is None
+    pix = (np.ascontiguousarray(pixels, dtype=np.int32) if labels is not None and not src_is_pixel
+           else np.zeros(1, np.int32))
+    if labels is not None and layer_min_shared > 0 and n_all > 1:
+        layered = _merge_layers(grid, planes, counts, sums, scatters, covariances, plane_of_voxel, point_plane, table,
+                                m, src_is_pixel, pix, w, h, min_shared=float(layer_min_shared),
+                                max_angle_rad=float(layer_max_angle_rad), offset_sigmas=float(layer_offset_sigmas),
+                                power=power, coeff=float(noise_coeff))
+        if layered is not None:
+            planes, table, plane_of_voxel, covariances = layered
     radii = np.zeros(n_all)
     areas = np.zeros(n_all)
     tb = np.zeros((n_all, 6))
     area_grid = np.zeros((n_all, 4), np.int64)
     sample_grid = np.zeros((n_all, 4), np.int64)
-    n_area, n_sample = kf.plane_grids(planes, merged.plane_of_voxel, len(grid), grid.counts, grid.sums,
+    n_area, n_sample = kf.plane_grids(planes, plane_of_voxel, len(grid), grid.counts, grid.sums,
                                       3.5 * grid.voxel_size_m, float(area_patch_m), float(sample_spacing_m), tb,
                                       area_grid, sample_grid)
     if n_area > MAX_DENSE_AREA_CELLS or n_sample > MAX_DENSE_SAMPLE_CELLS:
@@ -109,12 +128,7 @@ def assemble_plane_set(
                              sample_off, order, remap)
     occupied = ws.get("as_occupied", max(n_area, 1), np.uint8)
     sample_acc = ws.get("as_sample_acc", (max(n_sample, 1), 4), np.float64)
-    h, w = image_shape if image_shape is not None else (1, 1)
     with_labels = labels is not None
-    if with_labels and pixels is None and not grid.source_is_pixel:
-        raise ValueError("pixels: needed with image_shape to make the label image")
-    src_is_pixel = grid.source_is_pixel and pixels is None
-    pix = np.ascontiguousarray(pixels, dtype=np.int32) if with_labels and not src_is_pixel else np.zeros(1, np.int32)
     lab = labels.reshape(-1) if with_labels else np.zeros(1, np.int32)
     kf.plane_extent(grid.points, point_plane, table, m, centroids, tb, float(area_patch_m), area_grid, area_off,
                     occupied, float(sample_spacing_m), sample_grid, sample_off, sample_acc, radii, areas, with_labels,
@@ -131,9 +145,94 @@ def assemble_plane_set(
     sample_points = sample_points[:n_samples].copy()
     out = (np.empty((nk, 3)), np.empty(nk), np.empty((nk, 3)), np.empty(nk, np.int64), np.empty(nk), np.empty(nk),
            np.empty((nk, 4, 4)), np.empty((nk, 3)), np.empty((nk, 3, 3)))
-    kf.gather_planes(keep, nk, planes, centroids, counts, radii, areas, merged.covariances, sums, scatters, *out)
+    kf.gather_planes(keep, nk, planes, centroids, counts, radii, areas, covariances, sums, scatters, *out)
     return PlaneSet(
         normals=out[0], offsets=out[1], centroids=out[2], counts=out[3], radii=out[4], areas=out[5],
         covariances=out[6], sums=out[7], scatters=out[8], sample_points=sample_points, sample_ptr=sample_ptr,
         frame=frame, gravity=gravity, labels=labels, gravity_tolerance_rad=gravity_tolerance_rad,
     )
+
+
+# Pixel blocks of the layer test: layers interleave pixel by pixel (each pixel's disparity step is its own draw), so
+# nearly every 2x2 block of a layered wall holds both; a surface in front of another shares only the blocks along
+# its outline.
+LAYER_BLOCK = 2
+MAX_LAYER_PAIRS = 64
+
+
+def _merge_layers(grid, planes, counts, sums, scatters, covariances, plane_of_voxel, point_plane, table, m,
+                  src_is_pixel, pix, width, height, *, min_shared, max_angle_rad, offset_sigmas, power, coeff):
+    """Merge planes that are layers of one surface: normals within ``max_angle_rad``, the smaller one's centroid
+    within ``offset_sigmas`` depth sigmas of the larger plane, and the two seen in at least ``min_shared`` of the
+    smaller one's 2x2 pixel blocks (two surfaces cannot both be seen through the same rays; stereo's disparity
+    steps cut a far wall facing the camera into such layers, 13-15 cm apart at 6 m).
+
+    ``counts``, ``sums`` and ``scatters`` (plain statistics of the supporting points, about the origin) are summed
+    into the larger plane in place; the merged plane and its covariance are refit from them (least squares of all
+    its points: the layers' mean). Returns ``(planes, table, plane_of_voxel, covariances)`` renumbered so that the
+    smaller plane's points and voxels go to the larger one (which the plane set then drops for having no points),
+    or None when nothing merges.
+    """
+    pairs = np.empty((MAX_LAYER_PAIRS, 2), np.int64)
+    n = kf.layer_candidates(planes, counts, sums, float(np.cos(max_angle_rad)), offset_sigmas, power, coeff, pairs)
+    if n == 0:
+        return None
+    pairs = pairs[: min(n, MAX_LAYER_PAIRS)]
+    # One bit per plane of a pair (a uint64 per block): a pair with a plane beyond the first 64 is not merged.
+    involved = np.unique(pairs)[:64]
+    bit_of = np.full(len(planes), -1, np.int64)
+    bit_of[involved] = np.arange(len(involved))
+    pairs = pairs[(bit_of[pairs[:, 0]] >= 0) & (bit_of[pairs[:, 1]] >= 0)]
+    n_bw = (width + LAYER_BLOCK - 1) // LAYER_BLOCK
+    masks = np.zeros(n_bw * ((height + LAYER_BLOCK - 1) // LAYER_BLOCK), np.uint64)
+    kf.layer_blocks(point_plane, table, m, grid.source, src_is_pixel, pix, width, LAYER_BLOCK, n_bw, bit_of, masks)
+    parent = np.arange(len(planes))
+
+    def root(a):
+        while parent[a] != a:
+            a = parent[a]
+        return a
+
+    merged_any = False
+    # Largest first, so a wall takes its layers before a layer could take another.
+    for i, j in sorted(pairs.tolist(), key=lambda ij: (-counts[ij[0]], -counts[ij[1]], ij[0], ij[1])):
+        hj = (masks >> np.uint64(bit_of[j])) & np.uint64(1)
+        nj = int(hj.sum())
+        if nj == 0:
+            continue
+        both = int((hj & (masks >> np.uint64(bit_of[i]))).sum())
+        if both < min_shared * nj:
+            continue
+        ri, rj = root(i), root(j)
+        if ri != rj:
+            parent[rj] = ri
+            merged_any = True
+    if not merged_any:
+        return None
+    from reloc.mapping.fusion import plane_fit_from_stats
+
+    roots = np.array([root(a) for a in range(len(planes))])
+    moved = np.flatnonzero(roots != np.arange(len(planes)))
+    for j in moved:
+        r = roots[j]
+        counts[r] += counts[j]
+        sums[r] += sums[j]
+        scatters[r] += scatters[j]
+        counts[j] = 0
+        sums[j] = 0.0
+        scatters[j] = 0.0
+    targets = np.unique(roots[moved])
+    normals, offsets, _, covs = plane_fit_from_stats(sums[targets], scatters[targets], counts[targets],
+                                                     planes[targets, :3])
+    planes = planes.copy()
+    planes[targets, :3] = normals
+    planes[targets, 3] = offsets
+    covariances = covariances.copy()
+    covariances[targets] = covs
+    table = table.copy()
+    ok = table >= 0
+    table[ok] = roots[table[ok]]
+    pov = plane_of_voxel.copy()
+    ok = pov >= 0
+    pov[ok] = roots[pov[ok]]
+    return planes, table.astype(np.int32), pov.astype(plane_of_voxel.dtype), covariances

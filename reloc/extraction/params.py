@@ -65,7 +65,11 @@ class ExtractionParams:
     are within ``undergrown_max_angle_rad``, the centroid-to-centroid vector is within
     ``undergrown_max_depth_angle_rad`` of perpendicular to both normals (or the centroids lie within
     ``undergrown_max_offset_m`` of the other plane), and the centroids are within ``undergrown_radius_scale`` times
-    the larger radius.
+    the larger radius. Layers (frames only): two planes whose normals are within ``undergrown_max_angle_rad``, the
+    smaller one's centroid within ``max_thickness_sigmas`` depth sigmas of the larger plane, and which share at
+    least ``layer_min_shared`` of the smaller one's 2x2 pixel blocks are one surface seen through the same rays
+    (stereo's disparity steps cut a far wall into such layers): they become one plane, refit from both
+    (0 = never, the default; 0.5 measured for stereo, see docs/BENCHMARKS.md, "Stereo's far walls in layers").
     Plane set: ``area_patch_m`` (l of the area count), ``sample_spacing_m``, ``inlier_sigmas`` (points of a
     plane's voxels farther than this many sigmas are not labelled as the plane), ``refine_boundary`` (points of
     neighbouring voxels join it when inside that band), ``refine_iterations`` (robust passes over the points near
@@ -112,6 +116,7 @@ class ExtractionParams:
     undergrown_max_depth_angle_rad: float = math.radians(5.0)
     undergrown_max_offset_m: float = 0.05
     undergrown_radius_scale: float = 2.0
+    layer_min_shared: float = 0.0
     area_patch_m: float = 0.1
     sample_spacing_m: float = 0.1
     inlier_sigmas: float = 4.0
@@ -144,6 +149,9 @@ class ExtractionParams:
             v = getattr(self, name)
             if not isinstance(v, (int, float)) or not math.isfinite(v) or v < 0:
                 raise ValueError(f"ExtractionParams.{name}: expected a finite number >= 0, got {v!r}")
+        if not (isinstance(self.layer_min_shared, (int, float)) and 0 <= self.layer_min_shared <= 1):
+            raise ValueError(f"ExtractionParams.layer_min_shared: expected a number in [0, 1], got "
+                             f"{self.layer_min_shared!r}")
         bw = self.bevel_max_width_voxels
         if bw is not None and (isinstance(bw, bool) or not isinstance(bw, (int, float)) or not math.isfinite(bw)
                                or bw <= 0):
