@@ -707,8 +707,9 @@ def _print_protocol2(rows: list[dict], n_frames: int, min_gt_fraction: float) ->
                       "pixels (the sim's cylinders and spheres, whose flat caps are real planes, and flying pixels); "
                       "P lab = precision without those; purity = mean share of a true positive's pixels on its own "
                       "plane (the rest: pixels of other surfaces it took, e.g. along the line where it meets them); "
-                      "clean = matched detections neither under-segmented nor smaller than the recall threshold; ref = plain PCA of each matched detection's own true pixels "
-                      "(no outliers, no weights: a yardstick, not a limit); ms/fr is extract_planes after warm-up, not a speed benchmark")
+                      "clean = matched detections neither under-segmented nor smaller than the recall threshold; "
+                      "ref = plain PCA of each matched detection's own true pixels (no outliers, no weights: a "
+                      "yardstick, not a limit); ms/fr is extract_planes after warm-up, not a speed benchmark")
 
 
 # ----------------------------------------------------------------------------------------------------------------

@@ -65,11 +65,12 @@ class ExtractionParams:
     are within ``undergrown_max_angle_rad``, the centroid-to-centroid vector is within
     ``undergrown_max_depth_angle_rad`` of perpendicular to both normals (or the centroids lie within
     ``undergrown_max_offset_m`` of the other plane), and the centroids are within ``undergrown_radius_scale`` times
-    the larger radius. Layers (frames only): two planes whose normals are within ``undergrown_max_angle_rad``, the
-    smaller one's centroid within ``max_thickness_sigmas`` depth sigmas of the larger plane, and which share at
-    least ``layer_min_shared`` of the smaller one's 2x2 pixel blocks are one surface seen through the same rays
-    (stereo's disparity steps cut a far wall into such layers): they become one plane, refit from both
-    (0 = never, the default; 0.5 measured for stereo, see docs/BENCHMARKS.md, "Stereo's far walls in layers").
+    the larger radius. Layers (frames only, with merging on): two planes whose normals are within
+    ``undergrown_max_angle_rad``, the smaller one's centroid within ``max_thickness_sigmas`` depth sigmas of the
+    larger plane, and which share at least ``layer_min_shared`` of the smaller one's 2x2 pixel blocks are one
+    surface seen through the same rays (stereo's disparity steps cut a far wall into such layers): they become one
+    plane, refit from both (0 = never, the default; 0.5 measured for stereo, see docs/BENCHMARKS.md, "Stereo's far
+    walls in layers").
     Plane set: ``area_patch_m`` (l of the area count), ``sample_spacing_m``, ``inlier_sigmas`` (points of a
     plane's voxels farther than this many sigmas are not labelled as the plane), ``refine_boundary`` (points of
     neighbouring voxels join it when inside that band), ``refine_iterations`` (robust passes over the points near
