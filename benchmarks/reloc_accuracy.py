@@ -22,13 +22,17 @@ Goals: no false positive, recall >= 95%, median pose error < 3 cm and 0.5 deg.
     python benchmarks/reloc_accuracy.py [--noise kinect,tof,stereo] [--queries 10] [--window 40] [--ablation]
 
 ``--set KEY=VALUE`` (repeatable) changes an extraction parameter (ExtractionParams) for maps and queries alike, to
-measure a candidate default; with it, give ``--name`` so the recorded results are not replaced.
+measure a candidate default; with it, give ``--name`` so the recorded results are not replaced. ``--variant
+KEY=VALUE[,KEY=VALUE...]`` (repeatable) adds a matcher with those MatchingParams changed (``NAME_deg`` for a
+``NAME_rad`` field in degrees), evaluated on the same maps and queries as ours, and prints every query whose outcome
+it changes.
 """
 
 from __future__ import annotations
 
 import argparse
 import math
+import re
 import sys
 import time
 from dataclasses import asdict, replace
@@ -49,6 +53,27 @@ def paper_settings(params):
         final_max_angle_rad=params.match_max_angle_rad, final_max_offset_m=params.match_max_offset_m,
         min_ambiguity_ratio=1.0, probe_twins=False, tight_decision=False,
     )
+
+
+def parse_variant(spec: str, ours):
+    """``ours`` with the MatchingParams changes of a ``--variant`` spec (``KEY=VALUE`` items separated by commas);
+    ValueError naming what is wrong."""
+    items = [s for s in re.split(r",(?=\s*\w+\s*=)", spec) if s.strip()]
+    if not items:
+        raise ValueError(f"--variant: expected KEY=VALUE[,KEY=VALUE...], got {spec!r}")
+    return ours.with_(**parse_overrides(items, option="--variant"))
+
+
+def changed_outcomes(base: list, other: list) -> list[str]:
+    """One line per query whose label differs between two lists of outcomes of the same queries."""
+    before = {(o.scene, o.query): o for o in base}
+    lines = []
+    for o in other:
+        b = before[(o.scene, o.query)]
+        if b.label != o.label:
+            err = f" ({100 * o.translation_error_m:.1f} cm)" if math.isfinite(o.translation_error_m) else ""
+            lines.append(f"{o.query} in the map of {o.scene}: {b.label} -> {o.label}{err}")
+    return lines
 
 
 def _row(label, s):
@@ -76,6 +101,9 @@ def main() -> int:
     ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                     help="ExtractionParams override for maps and queries (repeatable; VALUE parsed as a Python "
                          "literal or taken as a string), to measure a candidate default")
+    ap.add_argument("--variant", action="append", default=[], metavar="KEY=VALUE[,KEY=VALUE...]",
+                    help="A matcher with these MatchingParams changed (NAME_deg for a NAME_rad field), evaluated "
+                         "beside ours on the same maps and queries (repeatable)")
     ap.add_argument("--name", default="reloc_accuracy", help="Result file stem in benchmarks/results/.")
     args = ap.parse_args()
 
@@ -88,6 +116,7 @@ def main() -> int:
     try:
         results_name(args.name)
         extraction = ExtractionParams().with_(**parse_overrides(args.set)) if args.set else None
+        variants = {f"ours with {spec}": parse_variant(spec, MatchingParams()) for spec in args.variant}
     except ValueError as exc:
         ap.error(str(exc))
 
@@ -98,7 +127,7 @@ def main() -> int:
     warm_up(("reloc.matching._kernels", "reloc.mapping._kernels", "reloc.extraction.pipeline", "sim.render"))
     ours = MatchingParams()
     methods = {"ours": ours, "ours, no optimistic rivals": replace(ours, optimistic_rivals=False),
-               "paper settings": paper_settings(ours)}
+               "paper settings": paper_settings(ours), **variants}
     base = EvalSpec(scenes=scenes, width=320, height=240, queries_per_kind=args.queries,
                     negatives_per_scene=args.negatives, window_frames=args.window,
                     query_spacing_frames=max(60, 3 * args.window + 30),
@@ -120,10 +149,18 @@ def main() -> int:
         n_windows = sum(len(qs) for qs in prepared.queries.values())
         print(f"{source}/{noise}: odometry check left out {sum(left_out.values())} of "
               f"{n_windows * spec.window_frames} window frames (exact odometry) {left_out}")
+        ours_outcomes = None
         for label, params in methods.items():
             rows = prepared.evaluate(params)
+            outcomes = [o for r in rows for o in r.outcomes]
+            if label == "ours":
+                ours_outcomes = outcomes
+            elif label in variants:
+                lines = changed_outcomes(ours_outcomes, outcomes)
+                print(f"{source}/{noise}: {label}: {len(lines)} outcome(s) differ from ours"
+                      + "".join(f"\n  {line}" for line in lines))
             per_scene = [r.summary() for r in rows]
-            total = summarize("all", [o for r in rows for o in r.outcomes])
+            total = summarize("all", outcomes)
             key = f"{source}/{noise}/{label}"
             if label == "ours":
                 print_table(HEAD, [_row(s.name, s) for s in per_scene + [total]],
@@ -136,7 +173,7 @@ def main() -> int:
                 "map_planes": {r.scene: r.map_planes for r in rows},
                 "per_scene": [s.to_dict() for s in per_scene],
                 "total": total.to_dict(),
-                "outcomes": [o.to_dict() for r in rows for o in r.outcomes],
+                "outcomes": [o.to_dict() for o in outcomes],
             }
     print_table(HEAD, summary_rows, title="All scenes: ours and the paper's decision rules side by side",
                 floatfmt=["", "", "", "", "", "", ".2f", ".2f", ".2f", ".3f", ".2f", ".2f"])

@@ -108,3 +108,36 @@ def test_the_benchmark_scripts_import_common_before_the_project():
         assert first_common is not None, f"{path.name} does not import _common"
         assert first_project is None or first_common < first_project, (
             f"{path.name}: line {first_project} imports the project before _common (line {first_common})")
+
+
+def test_a_matcher_variant_is_parsed_into_matching_params_and_its_changed_outcomes_listed():
+    from reloc_accuracy import changed_outcomes, parse_variant
+
+    from reloc.evaluation.metrics import Outcome
+    from reloc.matching import MatchingParams
+
+    ours = MatchingParams()
+    got = parse_variant("min_counted_area_m2=0.2, match_max_angle_deg=4,probe_twins=False", ours)
+    assert got == ours.with_(min_counted_area_m2=0.2, match_max_angle_deg=4, probe_twins=False)
+    assert got.min_counted_area_m2 == 0.2 and got.probe_twins is False
+    for spec, message in [("", "--variant: expected KEY=VALUE"), ("0.2", "--variant: expected KEY=VALUE"),
+                          ("min_score=0.1,bogus=2", "unknown parameter 'bogus'")]:
+        with pytest.raises(ValueError, match=message):
+            parse_variant(spec, ours)
+
+    def outcome(query, label, err=float("nan")):
+        return Outcome("office", query, True, False, "", "", label, translation_error_m=err)
+
+    base = [outcome("office/robot/1", "TP", 0.002), outcome("office/robot/2", "FN"), outcome("office/robot/3", "TN")]
+    other = [outcome("office/robot/1", "TP", 0.003), outcome("office/robot/2", "FP", 2.5), outcome("office/robot/3", "TN")]
+    assert changed_outcomes(base, other) == ["office/robot/2 in the map of office: FN -> FP (250.0 cm)"]
+    assert changed_outcomes(base, base) == []
+
+
+def test_the_accuracy_benchmark_refuses_a_bad_variant_before_measuring():
+    import subprocess
+
+    root = Path(__file__).resolve().parents[1]
+    done = subprocess.run([sys.executable, str(root / "benchmarks" / "reloc_accuracy.py"), "--variant", "nope=1"],
+                          capture_output=True, text=True, timeout=120)
+    assert done.returncode == 2 and "unknown parameter 'nope'" in done.stderr, done.stderr

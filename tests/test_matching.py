@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import math
+import re
 
 import numpy as np
 import pytest
@@ -447,3 +448,23 @@ def test_views_of_furniture_the_map_lacks_relocalize_with_the_unknown_credit():
     assert outcome[0.0][0] <= outcome[0.7][0]  # nothing lost
     assert len(outcome[0.7][0]) >= len(outcome[0.0][0]) + 2  # measured: 16 -> 18 of 30
     assert outcome[0.7][2] < outcome[0.0][2]
+
+
+def test_matching_params_with_changes_named_fields_and_refuses_the_rest():
+    base = MatchingParams()
+    got = base.with_(min_ambiguity_ratio=1.3, match_max_angle_deg=4, decision_modes=8.0, probe_twins=False)
+    assert got.min_ambiguity_ratio == 1.3 and got.probe_twins is False
+    assert got.match_max_angle_rad == pytest.approx(math.radians(4.0))
+    assert got.decision_modes == 8 and isinstance(got.decision_modes, int)
+    assert got.with_() == got and base.with_(min_score=0) == base  # 0 for 0.0 is the same value
+    for changes, message in [
+        ({"nope": 1}, "unknown parameter 'nope'"),
+        ({"probe_twins": 1}, "probe_twins: expected True or False, got 1"),
+        ({"decision_modes": 2.5}, "decision_modes: expected an integer, got 2.5"),
+        ({"min_score": "x"}, "min_score: expected a number, got 'x'"),
+        ({"min_score": True}, "min_score: expected a number, got True"),
+        ({"min_ambiguity_ratio": 0.5}, "min_ambiguity_ratio: expected >= 1"),
+        ({"nope_deg": 3}, "unknown parameter 'nope_deg'"),
+    ]:
+        with pytest.raises(ValueError, match=re.escape(message)):
+            base.with_(**changes)
