@@ -128,6 +128,12 @@ class ExtractionConfig(_Section):
     )
     irls_iterations: int = Field(3, ge=0, le=50, description="Residual-based robust reweighting passes (0 = off).")
     irls_kernel_sigmas: float = Field(3.0, gt=0, description="Robust kernel width in units of the sensor sigma.")
+    flying_pixel_sigmas: float = Field(
+        0.0, ge=0,
+        description="Drop every pixel beside a depth jump of more than this many noise sigmas (and 3% of the depth): "
+        "flying pixels between two surfaces, which real sensors report at occluding edges, and both sides of the "
+        "edge. 0 = off (the default; measured in docs/BENCHMARKS.md, 'Flying pixels').",
+    )
     noise_model: Literal["kinect", "tof", "stereo", "constant"] = Field(
         "kinect", description="Sensor noise law used by the weights and the thresholds."
     )

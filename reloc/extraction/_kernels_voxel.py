@@ -46,6 +46,48 @@ def backproject(depth, fx, fy, cx, cy, stride, z_min, z_max, pts, pix):
     return m
 
 
+@njit(error_model="numpy", inline="always")
+def _flying(z, zl, zr, zu, zd, c0, c1, c2, r):
+    """``z`` itself, or NaN when it is valid and a valid neighbour is farther than its jump threshold."""
+    inf = np.float32(np.inf)
+    tau = max(c0 + z * (c1 + z * c2), r * z)
+    bad = ((abs(z - zl) > tau) & (zl > 0) & (zl < inf)) | ((abs(z - zr) > tau) & (zr > 0) & (zr < inf))
+    bad |= ((abs(z - zu) > tau) & (zu > 0) & (zu < inf)) | ((abs(z - zd) > tau) & (zd > 0) & (zd < inf))
+    return np.float32(np.nan) if bad & (z > 0) & (z < inf) else z
+
+
+@njit(error_model="numpy")
+def drop_flying(depth, power, coeff, k_sigmas, rel, out):
+    """``out`` (H, W) float32: ``depth`` with NaN at every valid pixel beside a depth jump, i.e. one with a valid
+    4-neighbour farther from it than ``max(k_sigmas * coeff * z**power, rel * z)``: flying pixels (a depth between
+    two surfaces, on the far side of an occluding edge) and the pixels either side of the edge. A pixel is valid when
+    its depth is finite and > 0; invalid pixels are copied as they are and never count as neighbours. Float32
+    arithmetic; a neighbour outside the image is the pixel itself. The inner columns run branch-free (vectorised)."""
+    h, w = depth.shape
+    k = coeff * k_sigmas
+    c0 = np.float32(k if power == 0 else 0.0)
+    c1 = np.float32(k if power == 1 else 0.0)
+    c2 = np.float32(k if power == 2 else 0.0)
+    r = np.float32(rel)
+    flat = depth.reshape(-1)
+    res = out.reshape(-1)
+    for v in range(h):
+        row = v * w
+        up = (v - 1) * w if v > 0 else row
+        dn = (v + 1) * w if v + 1 < h else row
+        for u in (0, w - 1):
+            if u < 0:
+                continue
+            ul = u - 1 if u > 0 else u
+            ur = u + 1 if u + 1 < w else u
+            res[row + u] = _flying(flat[row + u], flat[row + ul], flat[row + ur], flat[up + u], flat[dn + u],
+                                   c0, c1, c2, r)
+        for u in range(1, w - 1):
+            i = np.uint64(row + u)
+            res[i] = _flying(flat[i], flat[i - np.uint64(1)], flat[i + np.uint64(1)], flat[np.uint64(up + u)],
+                             flat[np.uint64(dn + u)], c0, c1, c2, r)
+
+
 @njit(error_model="numpy")
 def _row_keys(depth, v, stride, yf, cx, inv_fx, z_min, z_max, inv_size, bx, by, bz, nyz, nz, ncell, pixel_key, i0):
     """Keys of the pixels of row ``v`` (see :func:`key_image`) into ``pixel_key[i0:]``, without a branch: the loop
@@ -454,6 +496,7 @@ def _warmup() -> None:
     pkey = np.empty(m, np.int64)
     pkey32 = np.empty(20, np.int32)
     key_image(depth, 5.0, 5.0, 2.0, 1.5, 1, 0.1, 10.0, 4.0, b, pkey32, cellmap)
+    drop_flying(depth, 2, 1.4e-3, 4.0, 0.03, np.empty_like(depth))
     scatter_image(depth, 5.0, 5.0, 2.0, 1.5, 1, pkey32, cellmap, b, np.empty(m, np.int64), np.empty(m + 1, np.int64),
                   np.empty((m, 3), np.float32), np.empty(m, np.int32))
     count_keys(pts, m, 4.0, b, pkey, cellmap)

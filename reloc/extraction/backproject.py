@@ -2,13 +2,19 @@
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from reloc.camera import Intrinsics
 from reloc.extraction import _kernels_voxel as kv
 from reloc.extraction._workspace import Workspace, fresh
+from reloc.extraction.params import noise_law_code
 
-__all__ = ["depth_to_points", "depth_to_key_image"]
+__all__ = ["depth_to_points", "depth_to_key_image", "drop_flying_pixels"]
+
+# A step of less than this fraction of the depth is never taken for a jump between surfaces.
+FLYING_MIN_REL = 0.03
 
 
 def depth_to_points(
@@ -87,3 +93,31 @@ def depth_to_key_image(
                      int(pixel_stride), float(min_depth_m), float(max_depth_m), 1.0 / float(voxel_size_m), box,
                      pixel_key, cellcount)
     return depth, pixel_key, cellcount, int(m)
+
+
+def drop_flying_pixels(
+    depth_m: np.ndarray,
+    *,
+    noise_model: str,
+    noise_coeff: float,
+    k_sigmas: float,
+    workspace: Workspace | None = None,
+) -> np.ndarray:
+    """``depth_m`` with NaN at every pixel beside a depth jump: a valid 4-neighbour farther from it than
+    ``max(k_sigmas * sigma(z), FLYING_MIN_REL * z)`` (``sigma`` the noise law ``noise_coeff * z**k`` of
+    ``noise_model``). That drops flying pixels (depths between two surfaces, which real sensors report on the far
+    side of an occluding edge and which a plane's noise band at long range would take in) together with the
+    pixels either side of the edge. Invalid pixels (0, NaN, inf, negative) stay as they are.
+
+    Returns an (H, W) float32 array (a workspace buffer when ``workspace`` is given: valid until the next call).
+    """
+    depth = np.asarray(depth_m)
+    if depth.ndim != 2:
+        raise ValueError(f"depth_m: expected an (H, W) image, got shape {depth.shape}")
+    if not (isinstance(k_sigmas, (int, float)) and math.isfinite(k_sigmas) and k_sigmas > 0):
+        raise ValueError(f"k_sigmas: expected a finite number > 0, got {k_sigmas!r}")
+    power = noise_law_code(noise_model)
+    depth = np.ascontiguousarray(depth, dtype=np.float32)
+    out = fresh(workspace).get("bp_unflying", depth.shape, np.float32)
+    kv.drop_flying(depth, int(power), float(noise_coeff), float(k_sigmas), FLYING_MIN_REL, out)
+    return out

@@ -35,7 +35,9 @@ def noise_sigma(z_m: np.ndarray | float, noise_model: str = "kinect", noise_coef
 class ExtractionParams:
     """Everything extraction and merging need, as plain values (metres, radians).
 
-    Depth to points: ``min_depth_m``, ``max_depth_m``, ``pixel_stride``.
+    Depth to points: ``min_depth_m``, ``max_depth_m``, ``pixel_stride``; ``flying_pixel_sigmas`` > 0 first drops
+    every pixel beside a depth jump of more than that many noise sigmas (and 3 % of the depth): flying pixels
+    between two surfaces and both sides of the edge (0 = off, the default; see docs/BENCHMARKS.md, "Flying pixels").
     Voxels and planarity: ``voxel_size_m``, ``min_points_per_voxel``; a voxel holds a plane when the RMS distance of
     its points to their PCA plane is below ``max(max_thickness_sigmas * sigma(z), max_thickness_floor_m)`` and the
     smallest / middle eigenvalue ratio, after the noise variance is taken off the smallest, is below
@@ -118,6 +120,7 @@ class ExtractionParams:
     undergrown_max_offset_m: float = 0.05
     undergrown_radius_scale: float = 2.0
     layer_min_shared: float = 0.0
+    flying_pixel_sigmas: float = 0.0
     area_patch_m: float = 0.1
     sample_spacing_m: float = 0.1
     inlier_sigmas: float = 4.0
@@ -145,7 +148,7 @@ class ExtractionParams:
                 raise ValueError(f"ExtractionParams.{name}: expected a finite number > 0, got {v!r}")
         non_negative = ("min_depth_m", "max_thickness_floor_m", "alpha", "beta", "grow_offset_sigmas",
                         "grow_angle_noise_sigmas",
-                        "min_plane_area_m2")
+                        "min_plane_area_m2", "flying_pixel_sigmas")
         for name in non_negative:
             v = getattr(self, name)
             if not isinstance(v, (int, float)) or not math.isfinite(v) or v < 0:

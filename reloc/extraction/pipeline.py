@@ -11,7 +11,7 @@ import numpy as np
 from reloc.camera import DepthFrame, gravity_from_camera_y
 from reloc.extraction._workspace import Workspace
 from reloc.extraction.assemble import assemble_plane_set
-from reloc.extraction.backproject import depth_to_key_image, depth_to_points
+from reloc.extraction.backproject import depth_to_key_image, depth_to_points, drop_flying_pixels
 from reloc.extraction.fit import check_points
 from reloc.extraction.merge import MergedPlanes, merge_voxel_planes, refine_merged_planes
 from reloc.extraction.params import ExtractionParams
@@ -68,10 +68,14 @@ class PlaneExtractor:
             self._box = frustum_box(frame.intrinsics, min_depth_m=p.min_depth_m, max_depth_m=p.max_depth_m,
                                     voxel_size_m=p.voxel_size_m)
             self._box_key = key
+        depth = frame.depth_m
+        if p.flying_pixel_sigmas > 0:
+            depth = drop_flying_pixels(depth, noise_model=p.noise_model, noise_coeff=p.noise_coeff,
+                                       k_sigmas=p.flying_pixel_sigmas, workspace=self.workspace)
         if int(np.prod(self._box[3:])) > MAX_FRUSTUM_CELLS:
             # Depth limits far beyond the voxel size: the frustum's dense key table would not fit in memory, so
             # the points are voxelized on their own (a hash of the occupied cells when their box is large).
-            pts, pix = depth_to_points(frame.depth_m, frame.intrinsics, min_depth_m=p.min_depth_m,
+            pts, pix = depth_to_points(depth, frame.intrinsics, min_depth_m=p.min_depth_m,
                                        max_depth_m=p.max_depth_m, pixel_stride=p.pixel_stride,
                                        workspace=self.workspace)
             timings = {"backproject": (time.perf_counter() - t0) * 1e3}
@@ -81,7 +85,7 @@ class PlaneExtractor:
             # Image-order voxelization: a pass that keys every pixel to its cell of the frustum, then one that
             # writes each point straight to its voxel's place (no point list in pixel order, no gather).
             depth, pixel_key, cellcount, m = depth_to_key_image(
-                frame.depth_m, frame.intrinsics, self._box, voxel_size_m=p.voxel_size_m, min_depth_m=p.min_depth_m,
+                depth, frame.intrinsics, self._box, voxel_size_m=p.voxel_size_m, min_depth_m=p.min_depth_m,
                 max_depth_m=p.max_depth_m, pixel_stride=p.pixel_stride, workspace=self.workspace,
             )
             timings = {"backproject": (time.perf_counter() - t0) * 1e3}
