@@ -34,7 +34,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from _common import REPO_ROOT, print_table, results_name, write_results  # noqa: E402
+from _common import REPO_ROOT, parse_overrides, print_table, results_name, write_results  # noqa: E402
 
 import numpy as np  # noqa: E402
 
@@ -89,13 +89,13 @@ def mapping_params(case: Case):
 class Clip:
     """A clip's frames (gravity per ``Case.gravity``) and their plane sets, extracted once."""
 
-    def __init__(self, root: Path, clip: str, gravity: str):
+    def __init__(self, root: Path, clip: str, gravity: str, extraction=None):
         from drivers.readers import open_sequence
         from reloc.extraction import PlaneExtractor
 
         self.seq = open_sequence(root / clip)
         self.gravity = gravity
-        self.extractor = PlaneExtractor()
+        self.extractor = PlaneExtractor(extraction)
         self._planes: dict[int, object] = {}
 
     def frame(self, i: int):
@@ -133,8 +133,9 @@ def matched_at_truth(reloc, submap, T_map_cam) -> int:
     return int(v.n_matched[0])
 
 
-def run(root: Path, windows=(1, 10), cases=CASES) -> dict:
-    """Every case, window and method: per-query records and TP / TN / FP / FN per (case, window, method)."""
+def run(root: Path, windows=(1, 10), extraction=None, cases=CASES) -> dict:
+    """Every case, window and method: per-query records and TP / TN / FP / FN per (case, window, method); planes
+    extracted with ``extraction`` (ExtractionParams, None = the defaults)."""
     from reloc._numba import warm_up
     from reloc.evaluation.metrics import classify
     from reloc.matching import MatchingParams, Relocalizer
@@ -148,7 +149,7 @@ def run(root: Path, windows=(1, 10), cases=CASES) -> dict:
 
     def clip_of(name: str, gravity: str) -> Clip:
         if (name, gravity) not in clips:
-            clips[(name, gravity)] = Clip(root, name, gravity)
+            clips[(name, gravity)] = Clip(root, name, gravity, extraction)
         return clips[(name, gravity)]
 
     # Maps: one per case, or one per left-out frame.
@@ -222,16 +223,24 @@ def run(root: Path, windows=(1, 10), cases=CASES) -> dict:
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--windows", default="1,10", help="Submap windows (frames) for the TUM clips, comma-separated.")
+    ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                    help="ExtractionParams override for every clip (repeatable), to measure a candidate setting")
     ap.add_argument("--name", default="reloc_real", help="Results file stem under benchmarks/results.")
     args = ap.parse_args()
-    name = results_name(args.name)
+    try:
+        name = results_name(args.name)
+        from reloc.extraction import ExtractionParams
+
+        extraction = ExtractionParams().with_(**parse_overrides(args.set)) if args.set else None
+    except ValueError as exc:
+        ap.error(str(exc))
     windows = tuple(int(w) for w in args.windows.split(","))
     root = real_data_dir()
     if not root.is_dir():
         print(f"real depth clips not found at {root} (set RELOC_REAL_DATA to their folder)", file=sys.stderr)
         return 2
     t0 = time.time()
-    res = run(root, windows)
+    res = run(root, windows, extraction)
     head = ["case", "window", "method", "TP", "TN", "FP", "FN", "median error", "matched at mocap pose",
             "median ms"]
     table = []
@@ -247,7 +256,7 @@ def main() -> int:
     for case, info in res["maps"].items():
         print(f"map {case}: {info['planes']} planes from frames {info['frames']}")
     path = write_results(name, params={"windows": list(windows), "data": str(root),
-                                       "cases": [asdict(c) for c in CASES]}, results=res)
+                                       "cases": [asdict(c) for c in CASES], "set": args.set}, results=res)
     print(f"{time.time() - t0:.0f} s; wrote {path}")
     return 0
 
