@@ -141,3 +141,12 @@ def test_the_accuracy_benchmark_refuses_a_bad_variant_before_measuring():
     done = subprocess.run([sys.executable, str(root / "benchmarks" / "reloc_accuracy.py"), "--variant", "nope=1"],
                           capture_output=True, text=True, timeout=120)
     assert done.returncode == 2 and "unknown parameter 'nope'" in done.stderr, done.stderr
+
+
+def test_the_real_clip_benchmark_refuses_a_bad_setting_before_measuring():
+    import subprocess
+
+    root = Path(__file__).resolve().parents[1]
+    done = subprocess.run([sys.executable, str(root / "benchmarks" / "reloc_real.py"), "--set", "nope=1"],
+                          capture_output=True, text=True, timeout=120)
+    assert done.returncode == 2 and "unknown parameter(s) ['nope']" in done.stderr, done.stderr
