@@ -18,8 +18,9 @@ Methods side by side on the same maps and submaps: ours (the shipped matcher) an
 mocap pose). For each positive the submap is also verified at its mocap pose: the number of distinct map planes it
 matches there says whether the map and the view hold the 5 distinct surfaces scene uniqueness asks for.
 
-``python benchmarks/reloc_real.py [--windows 1,10] [--name reloc_real]``; the folder is ``$RELOC_REAL_DATA`` or
-``../shared/data/real`` beside the repository.
+``python benchmarks/reloc_real.py [--windows 1,10] [--set KEY=VALUE] [--name reloc_real]`` (``--set``, repeatable: an
+ExtractionParams setting for every clip); the folder is ``$RELOC_REAL_DATA`` or ``../shared/data/real`` beside the
+repository.
 """
 
 from __future__ import annotations

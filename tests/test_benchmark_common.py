@@ -129,7 +129,8 @@ def test_a_matcher_variant_is_parsed_into_matching_params_and_its_changed_outcom
         return Outcome("office", query, True, False, "", "", label, translation_error_m=err)
 
     base = [outcome("office/robot/1", "TP", 0.002), outcome("office/robot/2", "FN"), outcome("office/robot/3", "TN")]
-    other = [outcome("office/robot/1", "TP", 0.003), outcome("office/robot/2", "FP", 2.5), outcome("office/robot/3", "TN")]
+    other = [outcome("office/robot/1", "TP", 0.003), outcome("office/robot/2", "FP", 2.5),
+             outcome("office/robot/3", "TN")]
     assert changed_outcomes(base, other) == ["office/robot/2 in the map of office: FN -> FP (250.0 cm)"]
     assert changed_outcomes(base, base) == []
 

@@ -57,7 +57,8 @@ def test_both_sides_of_an_edge_go_and_nothing_else():
         for step in (1, -1):
             beside |= box != np.roll(box, step, axis=axis)
     got = drop_flying_pixels(depth, noise_model="kinect", noise_coeff=1.425e-3, k_sigmas=4.0)
-    assert np.array_equal(np.isnan(got), beside) and beside.sum() == (4 * 10 - 4) + 4 * 10  # the box's outline and the ring outside it
+    # The box's outline (36 pixels) and the ring just outside it (40).
+    assert np.array_equal(np.isnan(got), beside) and beside.sum() == (4 * 10 - 4) + 4 * 10
     assert np.array_equal(got[~beside], depth[~beside])
 
 
@@ -97,7 +98,7 @@ def _wall_and_board(seed=0):
     return depth.astype(np.float32), edge, ~board & ~edge
 
 
-def test_flying_pixels_at_an_occluding_edge_never_reach_a_plane():
+def test_flying_pixels_at_an_occluding_edge_never_reach_a_plane(monkeypatch):
     depth, flying, wall = _wall_and_board()
     frame = DepthFrame(depth_m=depth, stamp_ns=0, seq=0, intrinsics=K, gravity_cam=np.array([0.0, 1.0, 0.0]))
     off = PlaneExtractor(ExtractionParams()).extract(frame).planes
@@ -110,5 +111,12 @@ def test_flying_pixels_at_an_occluding_edge_never_reach_a_plane():
         j = int(np.argmax(ps.areas))
         assert abs(ps.offsets[j] + 4.0 * ps.normals[j][2]) < 0.005 and abs(ps.normals[j][2]) > 0.9999
         assert (ps.labels[wall] == j).mean() > 0.95
-    # Switched off, the depth image is used as given: the same plane set as before the option existed.
-    assert np.array_equal(off.labels, PlaneExtractor(ExtractionParams(flying_pixel_sigmas=0.0)).extract(frame).planes.labels)
+    # Switched off, the filter is never run: the depth image goes to extraction as given.
+    import reloc.extraction.pipeline as pipeline
+
+    def refuse(*args, **kwargs):
+        raise AssertionError("the flying-pixel filter ran while switched off")
+
+    monkeypatch.setattr(pipeline, "drop_flying_pixels", refuse)
+    again = PlaneExtractor(ExtractionParams()).extract(frame).planes
+    assert np.array_equal(again.labels, off.labels)
