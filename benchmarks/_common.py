@@ -210,14 +210,17 @@ def write_results(name: str, *, params: dict, results: Any, out_dir: Path | None
 
 def parse_overrides(items: Iterable[str], option: str = "--set") -> dict:
     """``KEY=VALUE`` strings (a repeatable ``--set`` option) to a dict: VALUE (spaces around it dropped) parsed as a
-    Python literal (numbers, True, None, tuples), else kept as a string. Raises ValueError naming an item without
-    ``=`` or without a key."""
+    Python literal (numbers, True, None, tuples), ``true`` / ``false`` in any case as the config files spell them, else
+    kept as a string. Raises ValueError naming an item without ``=`` or without a key."""
     out: dict = {}
     for item in items:
         key, sep, value = item.partition("=")
         value = value.strip()
         if not sep or not key.strip():
             raise ValueError(f"{option}: expected KEY=VALUE, got {item!r}")
+        if value.lower() in ("true", "false"):
+            out[key.strip()] = value.lower() == "true"
+            continue
         try:
             out[key.strip()] = ast.literal_eval(value)
         except (ValueError, SyntaxError):

@@ -19,6 +19,8 @@ def test_overrides_parse_literals_and_keep_other_values_as_strings():
                    "mounting_gravity_cam": (0, 1, 0), "alpha": 0.5, "seed": 1000.0}
     assert parse_overrides([]) == {}
     assert parse_overrides(["a=1", "a=2"]) == {"a": 2}  # the last one wins
+    # The config files' spelling of a switch is a switch too, in any case; other words stay strings.
+    assert parse_overrides(["a=true", "b=FALSE", "c= True ", "d=yes"]) == {"a": True, "b": False, "c": True, "d": "yes"}
 
 
 @pytest.mark.parametrize("item", ["no_equals", "=3", " =3"])
