@@ -46,13 +46,16 @@ _WARMUPS: list[Callable[[], None]] = []
 def njit(fn=None, **kwargs):
     """``numba.njit`` with ``cache=True`` by default; the kernel is registered for warm-up and cache reporting.
 
-    Use as ``@njit`` or ``@njit(parallel=True)``; lazy compilation only (no explicit signatures).
+    Use as ``@njit`` or ``@njit(parallel=True)``; lazy compilation only (no explicit signatures). A helper with
+    ``inline="always"`` is not registered: it is compiled into its callers (and cached with them), never on its own,
+    so it would count as a cold cache on every start.
     """
     kwargs.setdefault("cache", True)
 
     def wrap(f):
         disp = numba.njit(**kwargs)(f)
-        _KERNELS.append(disp)
+        if kwargs.get("inline") != "always":
+            _KERNELS.append(disp)
         return disp
 
     return wrap(fn) if fn is not None else wrap

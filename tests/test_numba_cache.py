@@ -57,6 +57,17 @@ def test_cold_cache_prints_one_line_and_warm_prints_none(monkeypatch, capsys):
     assert capsys.readouterr().err == ""
 
 
+def test_after_the_warm_up_every_registered_kernel_is_cached():
+    """Otherwise every start would announce a cold cache (an inlined helper, compiled only into its callers, once
+    counted as one cold kernel on every run of the demo)."""
+    modules = ("reloc.extraction.pipeline", "reloc.matching._kernels", "reloc.mapping._kernels", "sim._noise_kernels",
+               "sim._render_kernels")
+    _numba.warm_up(modules, quiet=True)
+    cold = [f"{d.py_func.__module__}.{d.py_func.__name__}" for d in _numba._KERNELS if not _numba._has_cache_index(d)]
+    assert cold == []
+    assert _numba.warm_up(quiet=True)["cold"] == 0
+
+
 def test_a_fresh_process_uses_the_directory_it_is_given(tmp_path):
     """Set before import, NUMBA_CACHE_DIR is where numba itself puts the cache."""
     env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path / "cache"))
