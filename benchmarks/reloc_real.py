@@ -18,9 +18,10 @@ Methods side by side on the same maps and submaps: ours (the shipped matcher) an
 mocap pose). For each positive the submap is also verified at its mocap pose: the number of distinct map planes it
 matches there says whether the map and the view hold the 5 distinct surfaces scene uniqueness asks for.
 
-``python benchmarks/reloc_real.py [--windows 1,10] [--set KEY=VALUE] [--name reloc_real]`` (``--set``, repeatable: an
-ExtractionParams setting for every clip); the folder is ``$RELOC_REAL_DATA`` or ``../shared/data/real`` beside the
-repository.
+``python benchmarks/reloc_real.py [--windows 1,10] [--set KEY=VALUE] [--variant KEY=VALUE[,...]] [--name reloc_real]``
+(``--set``, repeatable: an ExtractionParams setting for every clip; ``--variant``, repeatable: matcher settings
+evaluated as one more method beside ours, as in ``reloc_accuracy.py``); the folder is ``$RELOC_REAL_DATA`` or
+``../shared/data/real`` beside the repository.
 """
 
 from __future__ import annotations
@@ -134,9 +135,10 @@ def matched_at_truth(reloc, submap, T_map_cam) -> int:
     return int(v.n_matched[0])
 
 
-def run(root: Path, windows=(1, 10), extraction=None, cases=CASES) -> dict:
+def run(root: Path, windows=(1, 10), extraction=None, cases=CASES, variants=None) -> dict:
     """Every case, window and method: per-query records and TP / TN / FP / FN per (case, window, method); planes
-    extracted with ``extraction`` (ExtractionParams, None = the defaults)."""
+    extracted with ``extraction`` (ExtractionParams, None = the defaults). ``variants``: more methods, name ->
+    MatchingParams, on the same maps and submaps."""
     from reloc._numba import warm_up
     from reloc.evaluation.metrics import classify
     from reloc.matching import MatchingParams, Relocalizer
@@ -145,7 +147,7 @@ def run(root: Path, windows=(1, 10), extraction=None, cases=CASES) -> dict:
 
     warm_up(("reloc.matching._kernels", "reloc.mapping._kernels", "reloc.extraction.pipeline"))
     ours = MatchingParams()
-    methods = {"ours": ours, "paper settings": paper_settings(ours)}
+    methods = {"ours": ours, "paper settings": paper_settings(ours), **(variants or {})}
     clips: dict[tuple[str, str], Clip] = {}
 
     def clip_of(name: str, gravity: str) -> Clip:
@@ -226,13 +228,18 @@ def main() -> int:
     ap.add_argument("--windows", default="1,10", help="Submap windows (frames) for the TUM clips, comma-separated.")
     ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                     help="ExtractionParams override for every clip (repeatable), to measure a candidate setting")
+    ap.add_argument("--variant", action="append", default=[], metavar="KEY=VALUE[,KEY=VALUE...]",
+                    help="MatchingParams settings evaluated as one more method beside ours (repeatable)")
     ap.add_argument("--name", default="reloc_real", help="Results file stem under benchmarks/results.")
     args = ap.parse_args()
     try:
         name = results_name(args.name)
         from reloc.extraction import ExtractionParams
+        from reloc.matching import MatchingParams
+        from reloc_accuracy import parse_variant
 
         extraction = ExtractionParams().with_(**parse_overrides(args.set)) if args.set else None
+        variants = {f"ours with {spec}": parse_variant(spec, MatchingParams()) for spec in args.variant}
     except ValueError as exc:
         ap.error(str(exc))
     windows = tuple(int(w) for w in args.windows.split(","))
@@ -241,7 +248,7 @@ def main() -> int:
         print(f"real depth clips not found at {root} (set RELOC_REAL_DATA to their folder)", file=sys.stderr)
         return 2
     t0 = time.time()
-    res = run(root, windows, extraction)
+    res = run(root, windows, extraction, variants=variants)
     head = ["case", "window", "method", "TP", "TN", "FP", "FN", "median error", "matched at mocap pose",
             "median ms"]
     table = []
@@ -257,7 +264,8 @@ def main() -> int:
     for case, info in res["maps"].items():
         print(f"map {case}: {info['planes']} planes from frames {info['frames']}")
     path = write_results(name, params={"windows": list(windows), "data": str(root),
-                                       "cases": [asdict(c) for c in CASES], "set": args.set}, results=res)
+                                       "cases": [asdict(c) for c in CASES], "set": args.set,
+                                       "variant": args.variant}, results=res)
     print(f"{time.time() - t0:.0f} s; wrote {path}")
     return 0
 

@@ -153,3 +153,6 @@ def test_the_real_clip_benchmark_refuses_a_bad_setting_before_measuring():
     done = subprocess.run([sys.executable, str(root / "benchmarks" / "reloc_real.py"), "--set", "nope=1"],
                           capture_output=True, text=True, timeout=120)
     assert done.returncode == 2 and "unknown parameter(s) ['nope']" in done.stderr, done.stderr
+    done = subprocess.run([sys.executable, str(root / "benchmarks" / "reloc_real.py"), "--variant",
+                           "min_ambiguity_ratio=1.4,nope=1"], capture_output=True, text=True, timeout=120)
+    assert done.returncode == 2 and "MatchingParams: unknown parameter 'nope'" in done.stderr, done.stderr

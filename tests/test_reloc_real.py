@@ -19,9 +19,26 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
 import reloc_real  # noqa: E402
 
 
+VARIANT = "ours, ambiguity ratio 1.4"
+
+
 @pytest.fixture(scope="module")
 def results(real_data):
-    return reloc_real.run(real_data, windows=(1, 10))
+    from reloc.matching import MatchingParams
+
+    return reloc_real.run(real_data, windows=(1, 10),
+                          variants={VARIANT: MatchingParams().with_(min_ambiguity_ratio=1.4)})
+
+
+def test_a_variant_is_one_more_method_on_the_same_queries(results):
+    rows = {(r["case"], r["window"]): set() for r in results["rows"]}
+    for r in results["rows"]:
+        rows[(r["case"], r["window"])].add(r["method"])
+    assert set(map(frozenset, rows.values())) == {frozenset({"ours", "paper settings", VARIANT})}
+    by_method = {}
+    for q in results["queries"]:
+        by_method.setdefault(q["method"], []).append((q["case"], q["window"], q["query"]))
+    assert by_method[VARIANT] == by_method["ours"]
 
 
 def test_no_wrong_pose_on_real_clips(results):
