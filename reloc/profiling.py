@@ -160,7 +160,10 @@ class Profiler:
         """Per stage: count, mean/p50/p95/p99/max in ms and share of the total.
 
         The share is relative to ``total_stage`` when given, else to the sum of the top-level stages (names without
-        a dot). Also gives ``compile_s`` (numba compilation, not part of any stage).
+        a dot). Without ``total_stage``, a dotted stage has a share only when its parent (the name before its last
+        dot) is a recorded stage: ``extract.refine`` is part of ``extract``, while ``capture.wait`` (time spent waiting)
+        and ``latency.capture_to_pose`` (an end-to-end span) are not parts of the work and get NaN, not a share
+        above 100 %. Also gives ``compile_s`` (numba compilation, not part of any stage).
         """
         with self._lock:
             items = [(k, v.count, v.total_ns, v.max_ns, v.samples_ns()) for k, v in self._stats.items()]
@@ -169,10 +172,12 @@ class Profiler:
             denom = next((tot for k, _, tot, _, _ in items if k == total_stage), 0)
         else:
             denom = sum(tot for k, _, tot, _, _ in items if "." not in k)
+        recorded = {k for k, count, _, _, _ in items if count}
         stages = {}
         for name, count, total_ns, max_ns, samples in items:
             if count == 0:
                 continue
+            part_of_work = total_stage is not None or "." not in name or name.rsplit(".", 1)[0] in recorded
             p50, p95, p99 = (np.percentile(samples, [50, 95, 99]) / 1e6) if samples.size else (0.0, 0.0, 0.0)
             stages[name] = {
                 "count": int(count),
@@ -182,7 +187,7 @@ class Profiler:
                 "p99_ms": float(p99),
                 "max_ms": max_ns / 1e6,
                 "total_ms": total_ns / 1e6,
-                "share": (total_ns / denom) if denom else float("nan"),
+                "share": (total_ns / denom) if denom and part_of_work else float("nan"),
             }
         return {"stages": stages, "compile_s": compile_s}
 

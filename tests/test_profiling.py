@@ -25,6 +25,26 @@ def test_percentiles_and_shares_from_recorded_durations():
     assert s["match"]["share"] == pytest.approx(0.5)
 
 
+def test_waits_and_end_to_end_spans_get_no_share_of_the_work():
+    """``capture.wait`` and ``latency.*`` are not parts of a recorded stage: their share is NaN (``reloc run`` printed
+    292 % for the capture wait); a part of a recorded stage keeps its share of the top-level total."""
+    prof = Profiler()
+    prof.record("extract", 0, 8_000_000)
+    prof.record("extract.refine", 0, 2_000_000)
+    prof.record("reloc", 0, 2_000_000)
+    prof.record("capture.wait", 0, 30_000_000)
+    prof.record("latency.capture_to_planes", 0, 12_000_000)
+    s = prof.summary()["stages"]
+    assert s["extract"]["share"] == pytest.approx(0.8)
+    assert s["extract.refine"]["share"] == pytest.approx(0.2)
+    assert np.isnan(s["capture.wait"]["share"]) and np.isnan(s["latency.capture_to_planes"]["share"])
+    assert s["capture.wait"]["p50_ms"] == pytest.approx(30.0)  # still timed
+    table = prof.table().splitlines()
+    assert "%" not in next(line for line in table if line.startswith("capture.wait"))
+    # Against a named total every stage is a share of it.
+    assert prof.summary("extract")["stages"]["capture.wait"]["share"] == pytest.approx(30 / 8)
+
+
 def test_window_bounds_memory_but_counts_stay_exact():
     prof = Profiler(window=10)
     for i in range(1000):

@@ -818,7 +818,9 @@ class LiveLoop:
             s = prof.get(stage)
             e2e[key] = None if s is None else {k: round(s[k], 3) for k in ("count", "p50_ms", "p95_ms", "p99_ms",
                                                                            "max_ms", "mean_ms")}
-        latency = {name: {k: (round(v, 4) if isinstance(v, float) else v) for k, v in s.items()}
+        # NaN (a wait's share: not part of the work) as null, so that the summary stays strict JSON.
+        latency = {name: {k: ((round(v, 4) if math.isfinite(v) else None) if isinstance(v, float) else v)
+                          for k, v in s.items()}
                    for name, s in prof.items() if not name.startswith("latency.")}
         info = self.source.info() if hasattr(self.source, "info") else {"name": str(self.source)}
         frames = {
