@@ -31,9 +31,12 @@ from reloc.profiling import Profiler
 __all__ = ["profile", "SequentialPipeline", "TABLE8_ROWS", "PAPER_TABLE8_MS", "table8", "profile_report",
            "format_report", "EXTRACT_STAGES", "RELOC_STAGES"]
 
+# The stages the extraction and the relocalizer time (``reloc.extraction.pipeline.STAGES``,
+# ``reloc.matching.relocalizer.STAGES`` and ``SUBSTAGES``; spelled out here so that this module imports without numba;
+# a test keeps them equal).
 EXTRACT_STAGES = ("backproject", "voxelize", "fit", "weight", "merge", "refine", "finalize")
 RELOC_STAGES = ("prepare", "select", "transform", "verify", "decide", "decide.weights", "decide.density",
-                "decide.probe", "refine")
+                "decide.tighten", "decide.probe", "refine")
 
 # The paper's Table 8 rows and the profiler stages each one sums (stages are disjoint; their parts are not summed).
 TABLE8_ROWS: dict[str, tuple[str, ...]] = {
@@ -53,7 +56,7 @@ _DETAILS = {
     "local_observation": [],
     "localization": ["reloc.prepare", "reloc.select", "reloc.transform", "reloc.refine"],
     "pose_likelihood": ["reloc.verify", "reloc.decide", "reloc.decide.weights", "reloc.decide.density",
-                        "reloc.decide.probe"],
+                        "reloc.decide.tighten", "reloc.decide.probe"],
 }
 
 
