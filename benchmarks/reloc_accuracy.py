@@ -88,6 +88,8 @@ HEAD = ["", "TP", "TN", "FP", "FN", "amb", "P[%]", "R[%]", "t_err[cm]", "r_err[d
 
 
 def main() -> int:
+    from reloc.evaluation.suite import EvalSpec
+
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--noise", default="kinect,tof,stereo", help="Noise models (comma separated).")
     ap.add_argument("--queries", type=int, default=10, help="Positive queries per trajectory kind and scene.")
@@ -104,12 +106,17 @@ def main() -> int:
     ap.add_argument("--variant", action="append", default=[], metavar="KEY=VALUE[,KEY=VALUE...]",
                     help="A matcher with these MatchingParams changed (NAME_deg for a NAME_rad field), evaluated "
                          "beside ours on the same maps and queries (repeatable)")
+    ap.add_argument("--query-seed", type=int, default=EvalSpec.query_seed,
+                    help="Seed of the query trajectories and their noise (positives, and through them the negatives): "
+                         "another value is a replicate of the suite on queries no default was tuned on.")
+    ap.add_argument("--map-seed", type=int, default=EvalSpec.map_seed,
+                    help="Seed of the mapping trajectories and their noise.")
     ap.add_argument("--name", default="reloc_accuracy", help="Result file stem in benchmarks/results/.")
     args = ap.parse_args()
 
     from reloc._numba import warm_up
     from reloc.evaluation.metrics import summarize
-    from reloc.evaluation.suite import SCENES, EvalSpec, prepare_suite, run_ablation
+    from reloc.evaluation.suite import SCENES, prepare_suite, run_ablation
     from reloc.extraction import ExtractionParams
     from reloc.matching import ABLATIONS, MatchingParams
 
@@ -131,7 +138,8 @@ def main() -> int:
     base = EvalSpec(scenes=scenes, width=320, height=240, queries_per_kind=args.queries,
                     negatives_per_scene=args.negatives, window_frames=args.window,
                     query_spacing_frames=max(60, 3 * args.window + 30),
-                    map_trajectories=(("robot", args.map_frames), ("handheld", args.map_frames)))
+                    map_trajectories=(("robot", args.map_frames), ("handheld", args.map_frames)),
+                    query_seed=args.query_seed, map_seed=args.map_seed)
     sources = [("extraction", n) for n in args.noise.split(",")]
     if not args.no_oracle:
         sources.append(("oracle", args.noise.split(",")[0]))

@@ -157,7 +157,8 @@ def decide(
     mode_w = np.bincount(group, weights=w, minlength=n_modes) / np.maximum(size, 1)
     density = pose_density(R[leaders], t[leaders], mode_w, params)
     rival = density
-    if optimistic and params.optimistic_rivals and state is not None:
+    credited = optimistic and params.optimistic_rivals and state is not None
+    if credited:
         # A rival is judged by what it might explain with a complete map: its planes that land where the map knows
         # nothing count as if matched (with the frequency weight such a match would carry), less so the more of
         # the plane's place the map saw empty (``free_frac``; at ``max_free_fraction`` it would contradict the map).
@@ -211,7 +212,7 @@ def decide(
         return Decision(
             False,
             f"ambiguous: {n_modes} poses, best score {score:.3f} not {params.min_ambiguity_ratio}x the runner-up "
-            f"{runner:.3f}",
+            f"{runner:.3f}" + (" (credited for its planes where the map knows nothing)" if credited else ""),
             best, score, runner, n_modes,
         )
     return Decision(True, "", best, score, runner, n_modes)
