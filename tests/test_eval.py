@@ -108,3 +108,29 @@ def test_demo_names_an_unknown_scene_before_any_work():
         with pytest.raises(ValueError, match=said):
             run_demo(spec, progress=lambda step, done, total: steps.append(step))
     assert steps == []
+
+
+def test_eval_command_runs_a_replicate_on_other_seeds(tmp_path):
+    """``reloc eval --query-seed / --map-seed``: the spec carries the seeds, and the queries are other views (their
+    ground-truth poses differ from the default seeds' ones), counted like any run."""
+    from click.testing import CliRunner
+
+    from reloc.cli import cli
+
+    def run(*seeds):
+        out = tmp_path / f"eval{len(seeds)}.json"
+        res = CliRunner().invoke(cli, ["eval", "--quick", "--scenes", "living_room", "--quiet", "--json", str(out),
+                                       *seeds])
+        assert res.exit_code == 0, res.output
+        return json.loads(out.read_text())
+
+    base, rep = run(), run("--query-seed", "7", "--map-seed", "5")
+    assert (base["spec"]["query_seed"], base["spec"]["map_seed"]) == (101, 1)
+    assert (rep["spec"]["query_seed"], rep["spec"]["map_seed"]) == (7, 5)
+    for d in (base, rep):
+        outcomes = d["outcomes"]["Ours"]
+        assert len(outcomes) == 8 and all(o["positive"] for o in outcomes)  # one scene: no negatives
+    # Other views: the positives' poses (and so their errors and reasons) are not those of the default seeds.
+    key = ("status", "reason", "translation_error_m")
+    assert [tuple(o[k] for k in key) for o in base["outcomes"]["Ours"]] != \
+        [tuple(o[k] for k in key) for o in rep["outcomes"]["Ours"]]
