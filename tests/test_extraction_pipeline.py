@@ -350,3 +350,33 @@ def test_gravity_sources_mounting_camera_y_with_its_tilt_tolerance_and_imu():
         ExtractionParams(mounting_gravity_cam=(0.0, 0.0, 0.0))
     with pytest.raises(ValueError, match="camera_tilt_tolerance_rad"):
         ExtractionParams(camera_tilt_tolerance_rad=-0.1)
+
+
+@pytest.mark.xfail(strict=True, reason="known defect (docs/BENCHMARKS.md, held-out replicates): a 6 cm step between "
+                                       "parallel surfaces gives a tilted strip at 2 m and bends the door into the wall "
+                                       "at 3 m; when this passes, drop the mark")
+@pytest.mark.parametrize("distance_m", [2.0, 3.0])
+def test_a_door_in_a_6cm_niche_stays_parallel_to_its_wall(distance_m):
+    """The office's closed door sits 6 cm deep in the wall at y = 6 m (simulator, Kinect noise, 320x240). Seen
+    square on, every extracted plane of that wall or door (a normal within 30 deg of the wall's) with 500 points or
+    more is parallel to it within 1 deg: at 2 m Kinect noise is 6 mm, at 3 m 13 mm, and each plane holds thousands
+    of points, so 1 deg is many sigmas. Today: at 2 m a 16 deg strip of 1,330 points across the step's edge; at 3 m
+    the door and half the wall as one plane 3.5 deg off (the map of the held-out replicate has both)."""
+    import sim
+    from reloc.evaluation.suite import EvalSpec, extraction_for_sensor
+
+    eye, target = np.array([-1.0, 6.0 - distance_m, 1.2]), np.array([-1.0, 6.0, 1.0])
+    z = (target - eye) / np.linalg.norm(target - eye)
+    x = np.cross(z, [0.0, 0.0, 1.0])
+    x /= np.linalg.norm(x)
+    T = np.eye(4)
+    T[:3, :3] = np.column_stack([x, np.cross(z, x), z])
+    T[:3, 3] = eye
+    frame = sim.simulate_frames("office", T[None], noise="kinect", camera="kinect", width=320, height=240, seed=0)[0]
+    params = extraction_for_sensor(EvalSpec(noise="kinect", camera="kinect", width=320, height=240))
+    ps = PlaneExtractor(params).extract(frame).planes
+    normals_world = ps.normals @ T[:3, :3].T
+    facing = (np.abs(normals_world[:, 1]) > np.cos(np.radians(30))) & (ps.counts >= 500)
+    assert facing.sum() >= 2  # the wall and the door (or what became of them)
+    tilts = np.degrees(np.arccos(np.clip(np.abs(normals_world[facing, 1]), 0.0, 1.0)))
+    assert tilts.max() < 1.0, np.round(tilts, 2)
