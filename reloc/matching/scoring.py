@@ -212,7 +212,8 @@ def decide(
         return Decision(
             False,
             f"ambiguous: {n_modes} poses, best score {score:.3f} not {params.min_ambiguity_ratio}x the runner-up "
-            f"{runner:.3f}" + (" (credited for its planes where the map knows nothing)" if credited else ""),
+            f"{runner:.3f}"
+            + (" (rivals judged with credit for their planes where the map knows nothing)" if credited else ""),
             best, score, runner, n_modes,
         )
     return Decision(True, "", best, score, runner, n_modes)
