@@ -22,7 +22,9 @@ Goals: no false positive, recall >= 95%, median pose error < 3 cm and 0.5 deg.
     python benchmarks/reloc_accuracy.py [--noise kinect,tof,stereo] [--queries 10] [--window 40] [--ablation]
 
 ``--set KEY=VALUE`` (repeatable) changes an extraction parameter (ExtractionParams) for maps and queries alike, to
-measure a candidate default; with it, give ``--name`` so the recorded results are not replaced. ``--variant
+measure a candidate default; ``--mapping-set KEY=VALUE`` likewise a MappingParams field (the fusion of maps and of
+the queries' submaps, ``NAME_deg`` for a ``NAME_rad`` field); with either, give ``--name`` so the recorded results
+are not replaced. ``--variant
 KEY=VALUE[,KEY=VALUE...]`` (repeatable) adds a matcher with those MatchingParams changed (``NAME_deg`` for a
 ``NAME_rad`` field in degrees), evaluated on the same maps and queries as ours, and prints every query whose outcome
 it changes.
@@ -103,6 +105,9 @@ def main() -> int:
     ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                     help="ExtractionParams override for maps and queries (repeatable; VALUE parsed as a Python "
                          "literal or taken as a string), to measure a candidate default")
+    ap.add_argument("--mapping-set", action="append", default=[], metavar="KEY=VALUE",
+                    help="MappingParams override for maps and submaps alike (repeatable; NAME_deg for a NAME_rad "
+                         "field), to measure a candidate default of the map fusion")
     ap.add_argument("--variant", action="append", default=[], metavar="KEY=VALUE[,KEY=VALUE...]",
                     help="A matcher with these MatchingParams changed (NAME_deg for a NAME_rad field), evaluated "
                          "beside ours on the same maps and queries (repeatable)")
@@ -118,11 +123,13 @@ def main() -> int:
     from reloc.evaluation.metrics import summarize
     from reloc.evaluation.suite import SCENES, prepare_suite, run_ablation
     from reloc.extraction import ExtractionParams
+    from reloc.mapping import MappingParams
     from reloc.matching import ABLATIONS, MatchingParams
 
     try:
         results_name(args.name)
         extraction = ExtractionParams().with_(**parse_overrides(args.set)) if args.set else None
+        mapping = MappingParams().with_(**parse_overrides(args.mapping_set, "--mapping-set"))
         variants = {f"ours with {spec}": parse_variant(spec, MatchingParams()) for spec in args.variant}
     except ValueError as exc:
         ap.error(str(exc))
@@ -150,7 +157,7 @@ def main() -> int:
             # The stereo model is the OAK-D class camera's, at its own resolution (its noise grows as z^2 / (f b)).
             spec = replace(spec, camera="oak-d", width=640, height=400)
         t0 = time.perf_counter()
-        prepared = prepare_suite(spec, extraction=extraction)
+        prepared = prepare_suite(spec, mapping, extraction=extraction)
         prep_s = time.perf_counter() - t0
         # The windows' odometry is the ground truth here, so every frame the odometry check leaves out is a loss.
         left_out = {name: sum(q.frames_left_out for q in qs) for name, qs in prepared.queries.items()}
@@ -188,7 +195,7 @@ def main() -> int:
     ablation = None
     if args.ablation:
         spec = replace(base, plane_source="extraction", noise="kinect")
-        out = run_ablation(spec, ABLATIONS, ours, extraction=extraction)
+        out = run_ablation(spec, ABLATIONS, ours, mapping, extraction=extraction)
         rows = [_row(v, summarize(v, [o for r in res for o in r.outcomes])) for v, res in out.items()]
         print_table(HEAD, rows, title="Table 3 analogue: ablations (extraction planes, kinect noise)",
                     floatfmt=["", "", "", "", "", "", ".2f", ".2f", ".2f", ".3f", ".2f", ".2f"])

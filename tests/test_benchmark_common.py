@@ -146,6 +146,18 @@ def test_the_accuracy_benchmark_refuses_a_bad_variant_before_measuring():
     assert done.returncode == 2 and "unknown parameter 'nope'" in done.stderr, done.stderr
 
 
+def test_the_accuracy_benchmark_refuses_a_bad_mapping_setting_before_measuring():
+    import subprocess
+
+    root = Path(__file__).resolve().parents[1]
+    for arg, message in [("fuse_max_angle_deg", "--mapping-set: expected KEY=VALUE"),
+                         ("nope=1", "MappingParams: unknown parameter 'nope'"),
+                         ("min_observations=2.5", "MappingParams: min_observations: expected an integer")]:
+        done = subprocess.run([sys.executable, str(root / "benchmarks" / "reloc_accuracy.py"), "--mapping-set", arg],
+                              capture_output=True, text=True, timeout=120)
+        assert done.returncode == 2 and message in done.stderr, (arg, done.stderr)
+
+
 def test_the_real_clip_benchmark_refuses_a_bad_setting_before_measuring():
     import subprocess
 

@@ -348,3 +348,17 @@ def test_stacked_informations_are_each_planes_own():
     for i, (g, c) in enumerate(zip(got, covs)):
         if i not in (2, 5):
             assert np.array_equal(g, np.linalg.pinv(0.5 * (c + c.T), rcond=1e-10, hermitian=True))
+
+
+def test_mapping_params_change_by_name_with_degrees_for_radian_fields():
+    base = MappingParams()
+    got = base.with_(fuse_max_angle_deg=2, min_observations=4, fuse_max_offset_m=0.02)
+    assert got.fuse_max_angle_rad == pytest.approx(math.radians(2.0), abs=1e-15)
+    assert (got.min_observations, got.fuse_max_offset_m) == (4, 0.02)
+    assert got.fusion.max_angle_rad == got.fuse_max_angle_rad
+    assert base.with_() == base
+    for change, message in [({"fuse_angle": 2}, "unknown parameter 'fuse_angle'"),
+                            ({"min_observations": 2.5}, "min_observations: expected an integer"),
+                            ({"fuse_max_angle_deg": 95}, "max_angle_rad: expected in")]:
+        with pytest.raises(ValueError, match=message):
+            base.with_(**change)

@@ -23,6 +23,7 @@ from typing import Callable, Iterable
 
 import numpy as np
 
+from reloc._params import with_changes
 from reloc.mapping.fusion import FusionParams, PlaneAccumulator, plane_basis, plane_cells
 from reloc.mapping.plane_map import PlaneMap
 from reloc.planeset import PlaneSet, moved_geometry
@@ -83,6 +84,11 @@ class MappingParams:
             raise ValueError(f"MappingParams.submap_check_fraction: expected a fraction in [0, 1], got "
                              f"{self.submap_check_fraction!r}")
         self.fusion  # validates the fusion thresholds
+
+    def with_(self, **changes) -> "MappingParams":
+        """A copy with some fields changed (``NAME_deg`` sets ``NAME_rad`` in degrees); unknown names and values of
+        the wrong type raise ValueError naming the parameter."""
+        return with_changes(self, changes)
 
     @property
     def fusion(self) -> FusionParams:

@@ -9,6 +9,8 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, fields, replace
 
+from reloc._params import with_changes
+
 __all__ = ["MatchingParams", "ABLATIONS", "ablation_params", "scaled_to_sensor", "sensor_sigma_m"]
 
 
@@ -118,24 +120,7 @@ class MatchingParams:
         """A copy with some fields changed. A name ending in ``_deg`` sets the field of that name ending in
         ``_rad``, given in degrees. Unknown names and values of the wrong type (a number for a switch, a fraction
         for a count) raise ValueError naming the parameter."""
-        kinds = {f.name: type(getattr(self, f.name)) for f in fields(self)}
-        out = {}
-        for key, value in changes.items():
-            name = key
-            if key.endswith("_deg") and key[:-4] + "_rad" in kinds:
-                name = key[:-4] + "_rad"
-            if name not in kinds:
-                raise ValueError(f"MatchingParams: unknown parameter {key!r}; expected one of {sorted(kinds)}")
-            kind = kinds[name]
-            number = isinstance(value, (int, float)) and not isinstance(value, bool)
-            if not (isinstance(value, bool) if kind is bool else
-                    number and float(value).is_integer() if kind is int else number):
-                expected = {bool: "True or False", int: "an integer"}.get(kind, "a number")
-                raise ValueError(f"MatchingParams: {key}: expected {expected}, got {value!r}")
-            if name != key:
-                value = math.radians(value)
-            out[name] = int(value) if kind is int else float(value) if kind is float else value
-        return replace(self, **out)
+        return with_changes(self, changes)
 
     @classmethod
     def from_config(cls, cfg) -> "MatchingParams":
