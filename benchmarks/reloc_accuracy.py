@@ -24,10 +24,9 @@ Goals: no false positive, recall >= 95%, median pose error < 3 cm and 0.5 deg.
 ``--set KEY=VALUE`` (repeatable) changes an extraction parameter (ExtractionParams) for maps and queries alike, to
 measure a candidate default; ``--mapping-set KEY=VALUE`` likewise a MappingParams field (the fusion of maps and of
 the queries' submaps, ``NAME_deg`` for a ``NAME_rad`` field); with either, give ``--name`` so the recorded results
-are not replaced. ``--variant
-KEY=VALUE[,KEY=VALUE...]`` (repeatable) adds a matcher with those MatchingParams changed (``NAME_deg`` for a
-``NAME_rad`` field in degrees), evaluated on the same maps and queries as ours, and prints every query whose outcome
-it changes.
+are not replaced. ``--variant KEY=VALUE[,KEY=VALUE...]`` (repeatable) adds a matcher with those MatchingParams
+changed (``NAME_deg`` for a ``NAME_rad`` field in degrees), evaluated on the same maps and queries as ours, and
+prints every query whose outcome it changes.
 """
 
 from __future__ import annotations
