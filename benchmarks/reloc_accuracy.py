@@ -163,6 +163,10 @@ def main() -> int:
         n_windows = sum(len(qs) for qs in prepared.queries.values())
         print(f"{source}/{noise}: odometry check left out {sum(left_out.values())} of "
               f"{n_windows * spec.window_frames} window frames (exact odometry) {left_out}")
+        # How well the maps' planes fit their own samples (a plane fused from two surfaces shows here).
+        consistency = {name: m.consistency() for name, m in prepared.maps.items()}
+        print(f"{source}/{noise}: map planes with over 25% of their samples more than 6 cm off (count, m^2): "
+              + ", ".join(f"{k} {v['bent_planes']} ({v['bent_area_m2']:.1f})" for k, v in consistency.items()))
         ours_outcomes = None
         for label, params in methods.items():
             rows = prepared.evaluate(params)
@@ -185,6 +189,7 @@ def main() -> int:
                 "prepare_s": prep_s,
                 "frames_left_out": left_out,
                 "map_planes": {r.scene: r.map_planes for r in rows},
+                "map_consistency": consistency,
                 "per_scene": [s.to_dict() for s in per_scene],
                 "total": total.to_dict(),
                 "outcomes": [o.to_dict() for o in outcomes],

@@ -211,6 +211,12 @@ class MappingConfig(_Section):
     fuse_min_overlap: float = Field(
         0.0, ge=0, le=1, description="Association: samples closer than sample spacing, as a fraction (0 = spheres touch)."
     )
+    fuse_check_bridged: bool = Field(
+        True, description="A plane associated with several fused planes goes to the one it fits best, and the others "
+        "join it only if they agree with it (normals within the angle, each one's samples within the offset of the other, "
+        "in the median): a plane that touches two surfaces does not make them one. false = merge them all (before "
+        "2026-11-26).",
+    )
     map_sample_spacing_m: float = Field(0.1, gt=0, description="Voxel size of each map plane's point sample.")
     min_observations: int = Field(
         3, ge=1, description="Map planes seen in fewer keyframes are dropped (mostly facets of curved clutter)."

@@ -362,3 +362,57 @@ def test_mapping_params_change_by_name_with_degrees_for_radian_fields():
                             ({"fuse_max_angle_deg": 95}, "max_angle_rad: expected in")]:
         with pytest.raises(ValueError, match=message):
             base.with_(**change)
+
+
+def _one_plane(rect, spacing=0.05):
+    from reloc.evaluation.synthetic import planes_from_points
+
+    n = np.asarray(rect.normal, dtype=np.float64)
+    return planes_from_points([rect.grid(spacing)], n[None], np.array([-n @ np.asarray(rect.center)]),
+                              spacing=spacing, frame="map", gravity=np.array([0.0, 0.0, -1.0]))
+
+
+@pytest.mark.parametrize("check_bridged", [True, False])
+def test_a_plane_touching_two_surfaces_does_not_make_them_one(check_bridged):
+    # As in a stereo map of the simulated living room: a TV's face 22 cm in front of its wall (A), a far view's mixed
+    # plane tilted 7 deg across the wall (B, seen three times, as the map keeps planes seen three times), and one
+    # view's plane (C) within 3 cm of both where they cross. C associates with A and B; they are not one surface.
+    # C goes to the one it fits best (B), and A stays as it was.
+    from reloc.evaluation.synthetic import Rect
+
+    tilt = math.radians(7.0)
+    n_b = (math.cos(tilt), -math.sin(tilt), 0.0)  # B crosses x = 0.20 at y = 1.9
+    face = Rect((0.22, 2.75, 1.025), (1, 0, 0), (0, 1, 0), 0.7, 0.325)  # x = 0.22, y 2.05..3.45, z 0.7..1.35
+    mixed = Rect((0.20 + 0.75 * math.tan(tilt), 2.65, 1.3), n_b, (math.sin(tilt), math.cos(tilt), 0.0), 1.65, 1.2)
+    bridge = Rect((0.20, 1.9, 1.025), (1, 0, 0), (0, 1, 0), 0.15, 0.325)
+    a, b, c = _one_plane(face), _one_plane(mixed), _one_plane(bridge)
+    # The premises: C is within the association offset (3 cm) of both, and B is not A's surface: each one's samples
+    # lie more than twice that from the other's plane in the median.
+    p = MappingParams(fuse_check_bridged=check_bridged)
+    med = lambda ps, q: np.median(np.abs(ps.sample_points @ q.normals[0] + q.offsets[0]))  # noqa: E731
+    assert med(c, a) <= p.fuse_max_offset_m and med(c, b) <= p.fuse_max_offset_m
+    assert med(b, a) > 2 * p.fuse_max_offset_m and med(a, b) > 2 * p.fuse_max_offset_m
+    assert med(c, b) < med(c, a)
+    builder = MapBuilder(p)
+    for ps in (a, a, a, b, b, b, c):
+        builder.add(ps, np.eye(4))
+    pm = builder.finish()
+    at_face = np.flatnonzero((pm.planes.normals @ [1, 0, 0] > 0.999) & (np.abs(pm.planes.offsets + 0.22) < 0.01))
+    if check_bridged:
+        assert len(pm.planes) == 2 and len(at_face) == 1
+        i = at_face[0]
+        assert pm.observations[i] == 3 and pm.observations[1 - i] == 4
+        # The face alone: y 2.05..3.45 by z 0.7..1.35 (0.91 m^2), to one 0.1 m patch along the edges.
+        assert pm.planes.areas[i] == pytest.approx(1.4 * 0.65, abs=0.3)
+        s = pm.planes.samples_of(i)
+        assert np.abs(s @ pm.planes.normals[i] + pm.planes.offsets[i]).max() < 0.03
+        # The map's own check: no plane with a quarter of its samples more than 6 cm off it. (B with C leans 1.8 deg
+        # toward C, since these synthetic planes all carry the same covariance floor: 10% of its samples are off.)
+        c = pm.consistency()
+        assert c["bent_planes"] == 0 and c["samples_off_plane_fraction"] < 0.15
+    else:
+        # Merged: one plane with the tilted plane's 7.9 m^2 of samples, up to 0.3 m off its own plane.
+        assert len(pm.planes) == 1
+        assert pm.planes.areas[0] > 6.0
+        c = pm.consistency()
+        assert c["bent_planes"] == 1 and c["bent_area_m2"] == pytest.approx(pm.planes.areas[0])

@@ -49,6 +49,7 @@ class MappingParams:
     fuse_max_angle_rad: float = math.radians(8.0)
     fuse_max_offset_m: float = 0.03
     fuse_min_overlap: float = 0.0
+    fuse_check_bridged: bool = True
     map_sample_spacing_m: float = 0.1
     min_observations: int = 3
     submap_window_frames: int = 1
@@ -93,7 +94,7 @@ class MappingParams:
     @property
     def fusion(self) -> FusionParams:
         return FusionParams(self.fuse_max_angle_rad, self.fuse_max_offset_m, self.fuse_min_overlap,
-                            self.map_sample_spacing_m)
+                            self.map_sample_spacing_m, self.fuse_check_bridged)
 
     @classmethod
     def from_config(cls, cfg) -> "MappingParams":
@@ -104,6 +105,7 @@ class MappingParams:
             fuse_max_angle_rad=math.radians(m.fuse_max_angle_deg),
             fuse_max_offset_m=m.fuse_max_offset_m,
             fuse_min_overlap=m.fuse_min_overlap,
+            fuse_check_bridged=m.fuse_check_bridged,
             map_sample_spacing_m=m.map_sample_spacing_m,
             min_observations=m.min_observations,
             submap_window_frames=m.submap_window_frames,

@@ -106,6 +106,25 @@ class PlaneMap:
             "observations_median": float(np.median(self.observations)) if len(self.observations) else 0.0,
             "free_space_voxels": int(len(self.free_keys)),
             "free_space_m3": round(float(len(self.free_keys) * self.free_voxel_m**3), 3),
+            **self.consistency(),
+        }
+
+    def consistency(self, off_m: float = 0.06, bent_fraction: float = 0.25) -> dict:
+        """How well each plane fits its own samples, without ground truth: the fraction of all samples more than
+        ``off_m`` from their plane, and the planes with more than ``bent_fraction`` of their samples that far (two
+        surfaces fused into one plane: a wall and furniture in front of it, a wall and a door in its niche)."""
+        p = self.planes
+        counts = np.diff(p.sample_ptr)
+        if len(p.sample_points) == 0:
+            return {"samples_off_plane_fraction": 0.0, "bent_planes": 0, "bent_area_m2": 0.0}
+        owner = np.repeat(np.arange(len(p)), counts)
+        dist = np.abs(np.einsum("ij,ij->i", p.sample_points.astype(np.float64), p.normals[owner]) + p.offsets[owner])
+        far = np.bincount(owner, weights=(dist > off_m).astype(np.float64), minlength=len(p))
+        bent = far > bent_fraction * np.maximum(counts, 1)
+        return {
+            "samples_off_plane_fraction": round(float(far.sum() / len(dist)), 4),
+            "bent_planes": int(bent.sum()),
+            "bent_area_m2": round(float(p.areas[bent].sum()), 3),
         }
 
 
