@@ -12,8 +12,8 @@ voxel (sum and count per voxel of edge ``spacing_m``). A new plane associated wi
 merges them (a wall seen in pieces becomes one plane). With ``check_bridged`` the new plane goes to the one it fits
 best (median offset of its samples), and the others join that one only where they agree with it themselves: normals
 within ``max_angle_rad`` and each one's samples within ``max_offset_m`` of the other's plane (median). Without that
-check one far, mixed plane (a stereo wall fused with furniture in front of it) made a TV's 0.7 m^2 face and tilted planes of
-2-5 m^2 one map plane of 8.1 m^2 in the simulated living room.
+check one far, mixed plane (a stereo wall fused with furniture in front of it) made a TV's 0.7 m^2 face and tilted
+planes of 2-5 m^2 one map plane of 8.1 m^2 in the simulated living room.
 """
 
 from __future__ import annotations
