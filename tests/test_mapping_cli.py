@@ -33,11 +33,16 @@ def test_map_build_and_info(office_sequence, tmp_path, capsys, source):
     said = capsys.readouterr().out
     assert "planes" in said and "keyframes" in said
     pm = load_map(out)
+    c = pm.consistency()
+    # Planes fused across two surfaces are reported when the map is built; the simulator's exact planes have none.
+    assert ("more than 6 cm off them" in said) == (c["bent_planes"] > 0)
+    assert source == "extraction" or c == {"samples_off_plane_fraction": 0.0, "bent_planes": 0, "bent_area_m2": 0.0}
     assert len(pm) >= 8 and pm.meta["plane_source"] == source and pm.meta["frame_count"] == 240
     assert len(pm.free_keys) > 0 and (tmp_path / f"{source}.npz.config.yaml").is_file()
     assert main(["map", "info", str(out), "--json"]) == 0
     info = json.loads(capsys.readouterr().out)
     assert info["summary"]["planes"] == len(pm) and info["meta"]["format_version"] == 1
+    assert {k: info["summary"][k] for k in c} == c
 
 
 def test_map_info_names_a_bad_file(tmp_path, capsys):
@@ -127,3 +132,11 @@ def test_a_sequences_stored_noise_law_is_used_unless_the_config_names_one(tmp_pa
     assert main(["map", "build", str(seq), "-o", str(tmp_path / "k.npz"), "--config", str(cfg), "--quiet"]) == 0
     ex = load_map(tmp_path / "k.npz").meta["config"]["extraction"]
     assert (ex["noise_model"], ex["noise_coeff"]) == ("kinect", 1.425e-3)
+
+
+def test_map_build_names_planes_fused_across_two_surfaces():
+    from reloc.commands.map_cmd import bent_planes_note
+
+    assert bent_planes_note({"bent_planes": 0, "bent_area_m2": 0.0, "samples_off_plane_fraction": 0.0}) is None
+    note = bent_planes_note({"bent_planes": 2, "bent_area_m2": 4.9, "samples_off_plane_fraction": 0.0125})
+    assert note.startswith("note: 2 planes (4.9 m^2)") and "1.2% of all samples" in note

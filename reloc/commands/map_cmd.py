@@ -134,6 +134,9 @@ def build(seq, out_path, frames_spec, source, config_path, quiet):
         f"{plane_map.meta['frame_count']} frames ({plane_map.meta['frames_without_pose']} without pose, "
         f"{plane_map.meta['frames_failed']} failed) in {time.perf_counter() - t0:.1f} s"
     )
+    note = bent_planes_note(s)
+    if note:
+        click.echo(note)
     need = cfg.evaluation.min_matched_planes
     if s["planes"] < need:
         # Not an error (the file is a valid map), but nothing can be relocalized in it: say why and what helps.
@@ -143,6 +146,16 @@ def build(seq, out_path, frames_spec, source, config_path, quiet):
             f"{plane_map.meta['keyframe_count']} keyframes were dropped: map a longer sequence, or lower "
             "mapping.min_observations or the keyframe thresholds (mapping.keyframe_min_translation_m, "
             "keyframe_min_rotation_deg)", err=True)
+
+
+def bent_planes_note(summary: dict) -> str | None:
+    """What ``reloc map build`` says of planes fused across two surfaces (a door in its niche and the wall, furniture
+    and the wall behind it; matching against such a plane tilts poses), from :meth:`PlaneMap.summary`; None if none."""
+    if not summary["bent_planes"]:
+        return None
+    return (f"note: {summary['bent_planes']} planes ({summary['bent_area_m2']} m^2) have more than a quarter of their "
+            f"samples more than 6 cm off them; {100 * summary['samples_off_plane_fraction']:.1f}% of all samples are "
+            "that far (reloc map info shows the same)")
 
 
 @map_group.command("info")
