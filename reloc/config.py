@@ -217,6 +217,11 @@ class MappingConfig(_Section):
         "in the median): a plane that touches two surfaces does not make them one. false = merge them all (before "
         "2026-11-26).",
     )
+    fuse_max_far_fraction: float = Field(
+        0.25, ge=0, le=1, description="Association: at most this share of a plane's samples more than twice "
+        "fuse_max_offset_m from the fused plane (a plane half on a surface and half on one behind it passes the median "
+        "test, not this one). 1 = off (before 2026-11-27).",
+    )
     map_sample_spacing_m: float = Field(0.1, gt=0, description="Voxel size of each map plane's point sample.")
     min_observations: int = Field(
         3, ge=1, description="Map planes seen in fewer keyframes are dropped (mostly facets of curved clutter)."

@@ -416,3 +416,35 @@ def test_a_plane_touching_two_surfaces_does_not_make_them_one(check_bridged):
         assert pm.planes.areas[0] > 6.0
         c = pm.consistency()
         assert c["bent_planes"] == 1 and c["bent_area_m2"] == pytest.approx(pm.planes.areas[0])
+
+
+@pytest.mark.parametrize("max_far_fraction", [0.25, 1.0])
+def test_a_plane_of_two_layers_does_not_join_a_surface(max_far_fraction):
+    # A far stereo view's plane mostly on a TV's face and partly on the wall 22 cm behind it (37.5 % of its samples),
+    # fitted between the two (x = 0.1375): its samples' median offset from the face's map plane is 0, so only the share
+    # of far samples tells it is not the face. (The test is one-way, the new plane's samples against the map plane: a
+    # two-layer plane already in the map, fitted on one of its layers, still takes in a plane on that layer.)
+    from reloc.evaluation.synthetic import Rect
+
+    face = _one_plane(Rect((0.22, 2.75, 1.025), (1, 0, 0), (0, 1, 0), 0.7, 0.325))  # y 2.05..3.45
+    on_face = Rect((0.22, 3.7, 1.025), (1, 0, 0), (0, 1, 0), 0.25, 0.325).grid(0.05)  # y 3.45..3.95, touching it
+    on_wall = Rect((0.0, 4.35, 1.025), (1, 0, 0), (0, 1, 0), 0.15, 0.325).grid(0.05)  # y 4.2..4.5, 22 cm behind
+    from reloc.evaluation.synthetic import planes_from_points
+
+    mixed = planes_from_points([np.concatenate([on_face, on_wall])], np.array([[1.0, 0, 0]]), np.array([-0.1375]),
+                               spacing=0.05, frame="map", gravity=np.array([0.0, 0.0, -1.0]))
+    far = np.abs(mixed.sample_points[:, 0] - 0.22) > 0.06
+    assert far.mean() == pytest.approx(0.375, abs=0.03)
+    builder = MapBuilder(MappingParams(fuse_max_far_fraction=max_far_fraction))
+    for ps in (face, face, face, mixed, mixed, mixed):
+        builder.add(ps, np.eye(4))
+    pm = builder.finish()
+    off = [np.abs(pm.planes.samples_of(i) @ pm.planes.normals[i] + pm.planes.offsets[i]).max() for i in range(len(pm))]
+    if max_far_fraction < 1:
+        # The face alone, with its own samples (within 1 mm). The two-layer plane does not even fuse with itself (its
+        # samples lie 8-14 cm from its own plane), so seen once each time it is dropped as the map drops such planes.
+        assert len(pm) == 1 and pm.observations[0] == 3 and off[0] < 1e-3
+        assert pm.planes.offsets[0] == pytest.approx(-0.22, abs=1e-6)
+    else:
+        # The face takes it in, moves toward the wall (x = 0.187 after the first), and holds the wall's samples.
+        assert len(pm) == 1 and pm.observations[0] >= 4 and off[0] > 0.15

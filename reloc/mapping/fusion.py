@@ -1,7 +1,8 @@
 """Fusing planes seen from several poses into one plane per physical surface.
 
 Planes (already in one common frame) are associated with the planes accumulated so far when their normals agree
-within ``max_angle_rad``, the new plane's samples lie within ``max_offset_m`` of the old plane, and the two touch:
+within ``max_angle_rad``, the new plane's samples lie within ``max_offset_m`` of the old plane (median) with at most
+``max_far_fraction`` of them beyond twice that, and the two touch:
 at least ``min_overlap`` of the new plane's sample voxels have a voxel of the old plane among their 26 neighbours
 (0 means one is enough). Associated planes are fused by their information: each input plane's (n, d) with its
 covariance (the robust, noise-weighted fit of extraction) contributes ``I_k = C_k^+``; the fused plane minimizes
@@ -44,6 +45,7 @@ class FusionParams:
     min_overlap: float = 0.0
     spacing_m: float = 0.1
     check_bridged: bool = True
+    max_far_fraction: float = 0.25
 
     def __post_init__(self) -> None:
         if not (0 < self.max_angle_rad < math.pi / 2):
@@ -54,6 +56,8 @@ class FusionParams:
             raise ValueError(f"min_overlap: expected in [0, 1], got {self.min_overlap}")
         if not self.spacing_m > 0:
             raise ValueError(f"spacing_m: expected > 0, got {self.spacing_m}")
+        if not 0 <= self.max_far_fraction <= 1:
+            raise ValueError(f"max_far_fraction: expected in [0, 1], got {self.max_far_fraction}")
 
 
 def voxel_keys(points: np.ndarray, spacing_m: float) -> np.ndarray:
@@ -261,6 +265,9 @@ class PlaneAccumulator:
                 continue
             off = _median(dist)
             if off > p.max_offset_m:
+                continue
+            # A plane of two layers (half on this surface, the rest on one behind it) passes the median: not a quarter.
+            if p.max_far_fraction < 1 and np.count_nonzero(dist > 2 * p.max_offset_m) > p.max_far_fraction * len(dist):
                 continue
             frac = self._touching(keys_q, m)
             if frac > 0 and frac >= p.min_overlap:
