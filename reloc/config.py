@@ -219,8 +219,8 @@ class MappingConfig(_Section):
     )
     fuse_max_far_fraction: float = Field(
         0.25, ge=0, le=1, description="Association: at most this share of a plane's samples more than twice "
-        "fuse_max_offset_m from the fused plane (a plane half on a surface and half on one behind it passes the median "
-        "test, not this one). 1 = off (before 2026-11-27).",
+        "fuse_max_offset_m from the fused plane (a plane mostly on a surface and partly on one behind it passes the "
+        "median test, not this one). 1 = off (before 2026-11-27).",
     )
     map_sample_spacing_m: float = Field(0.1, gt=0, description="Voxel size of each map plane's point sample.")
     min_observations: int = Field(

@@ -266,7 +266,7 @@ class PlaneAccumulator:
             off = _median(dist)
             if off > p.max_offset_m:
                 continue
-            # A plane of two layers (half on this surface, the rest on one behind it) passes the median: not a quarter.
+            # A plane mostly on this surface and partly on one behind it passes the median, not this.
             if p.max_far_fraction < 1 and np.count_nonzero(dist > 2 * p.max_offset_m) > p.max_far_fraction * len(dist):
                 continue
             frac = self._touching(keys_q, m)
@@ -299,8 +299,8 @@ class PlaneAccumulator:
 
     def _agree(self, a: int, b: int) -> bool:
         """Whether accumulated planes ``a`` and ``b``, both associated with one plane, are one surface: normals within
-        ``max_angle_rad`` and the samples of each within ``max_offset_m`` of the other's plane in the median (the test a
-        plane passes to join one; a wall and a tilted plane that cross only where the new plane lies do not)."""
+        ``max_angle_rad`` and the samples of each within ``max_offset_m`` of the other's plane in the median (the median
+        test a plane passes to join one; a wall and a tilted plane that cross only where the new plane lies do not)."""
         p = self.params
         if float(self.normals[a] @ self.normals[b]) < math.cos(p.max_angle_rad):
             return False
