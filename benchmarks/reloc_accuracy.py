@@ -123,6 +123,7 @@ def main() -> int:
     from reloc.evaluation.suite import SCENES, prepare_suite, run_ablation
     from reloc.extraction import ExtractionParams
     from reloc.mapping import MappingParams
+    from reloc.mapping.plane_map import BENT_FRACTION, BENT_OFF_M
     from reloc.matching import ABLATIONS, MatchingParams
 
     try:
@@ -165,7 +166,8 @@ def main() -> int:
               f"{n_windows * spec.window_frames} window frames (exact odometry) {left_out}")
         # How well the maps' planes fit their own samples (a plane fused from two surfaces shows here).
         consistency = {name: m.consistency() for name, m in prepared.maps.items()}
-        print(f"{source}/{noise}: map planes with over 25% of their samples more than 6 cm off (count, m^2): "
+        print(f"{source}/{noise}: map planes with over {BENT_FRACTION:.0%} of their samples more than "
+              f"{100 * BENT_OFF_M:.0f} cm off (count, m^2): "
               + ", ".join(f"{k} {v['bent_planes']} ({v['bent_area_m2']:.1f})" for k, v in consistency.items()))
         ours_outcomes = None
         for label, params in methods.items():

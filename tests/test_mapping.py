@@ -408,14 +408,14 @@ def test_a_plane_touching_two_surfaces_does_not_make_them_one(check_bridged):
         assert np.abs(s @ pm.planes.normals[i] + pm.planes.offsets[i]).max() < 0.03
         # The map's own check: no plane with a quarter of its samples more than 6 cm off it. (B with C leans 1.8 deg
         # toward C, since these synthetic planes all carry the same covariance floor: 11% of its samples are off.)
-        c = pm.consistency()
-        assert c["bent_planes"] == 0 and c["samples_off_plane_fraction"] < 0.15
+        cons = pm.consistency()
+        assert cons["bent_planes"] == 0 and cons["samples_off_plane_fraction"] < 0.15
     else:
         # Merged: one plane with the tilted plane's 7.9 m^2 of samples, half of them more than 6 cm off it (to 16 cm).
         assert len(pm.planes) == 1
         assert pm.planes.areas[0] > 6.0
-        c = pm.consistency()
-        assert c["bent_planes"] == 1 and c["bent_area_m2"] == pytest.approx(pm.planes.areas[0])
+        cons = pm.consistency()
+        assert cons["bent_planes"] == 1 and cons["bent_area_m2"] == pytest.approx(pm.planes.areas[0])
 
 
 @pytest.mark.parametrize("max_far_fraction", [0.25, 1.0])

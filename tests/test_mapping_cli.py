@@ -139,4 +139,5 @@ def test_map_build_names_planes_fused_across_two_surfaces():
 
     assert bent_planes_note({"bent_planes": 0, "bent_area_m2": 0.0, "samples_off_plane_fraction": 0.0}) is None
     note = bent_planes_note({"bent_planes": 2, "bent_area_m2": 4.9, "samples_off_plane_fraction": 0.0125})
-    assert note.startswith("note: 2 planes (4.9 m^2)") and "1.2% of all samples" in note
+    assert note.startswith("note: 2 planes (4.9 m^2) have more than 25% of their samples more than 6 cm off them")
+    assert "1.2% of all samples" in note

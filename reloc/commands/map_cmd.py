@@ -151,11 +151,14 @@ def build(seq, out_path, frames_spec, source, config_path, quiet):
 def bent_planes_note(summary: dict) -> str | None:
     """What ``reloc map build`` says of planes fused across two surfaces (a door in its niche and the wall, furniture
     and the wall behind it; matching against such a plane tilts poses), from :meth:`PlaneMap.summary`; None if none."""
+    from reloc.mapping.plane_map import BENT_FRACTION, BENT_OFF_M
+
     if not summary["bent_planes"]:
         return None
-    return (f"note: {summary['bent_planes']} planes ({summary['bent_area_m2']} m^2) have more than a quarter of their "
-            f"samples more than 6 cm off them; {100 * summary['samples_off_plane_fraction']:.1f}% of all samples are "
-            "that far (reloc map info shows the same)")
+    return (f"note: {summary['bent_planes']} planes ({summary['bent_area_m2']} m^2) have more than {BENT_FRACTION:.0%} "
+            f"of their samples more than {100 * BENT_OFF_M:.0f} cm off them; "
+            f"{100 * summary['samples_off_plane_fraction']:.1f}% of all samples are that far (reloc map info shows the "
+            "same)")
 
 
 @map_group.command("info")

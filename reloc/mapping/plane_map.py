@@ -24,10 +24,14 @@ import numpy as np
 from reloc.atomic import atomic_write
 from reloc.planeset import PlaneSet
 
-__all__ = ["PlaneMap", "MapFileError", "save_map", "load_map", "MAP_FORMAT", "MAP_FORMAT_VERSION"]
+__all__ = ["PlaneMap", "MapFileError", "save_map", "load_map", "MAP_FORMAT", "MAP_FORMAT_VERSION", "BENT_OFF_M",
+           "BENT_FRACTION"]
 
 MAP_FORMAT = "voxelplane-reloc-map"
 MAP_FORMAT_VERSION = 1
+# PlaneMap.consistency: a plane is bent when more than BENT_FRACTION of its samples lie more than BENT_OFF_M off it.
+BENT_OFF_M = 0.06
+BENT_FRACTION = 0.25
 _PREFIX = "plane_"
 # What reading a damaged archive raises (a flipped bit in an entry's compression method: NotImplementedError).
 _UNREADABLE = (zipfile.BadZipFile, zlib.error, EOFError, OSError, ValueError, NotImplementedError)
@@ -109,7 +113,7 @@ class PlaneMap:
             **self.consistency(),
         }
 
-    def consistency(self, off_m: float = 0.06, bent_fraction: float = 0.25) -> dict:
+    def consistency(self, off_m: float = BENT_OFF_M, bent_fraction: float = BENT_FRACTION) -> dict:
         """How well each plane fits its own samples, without ground truth: the fraction of all samples more than
         ``off_m`` from their plane, and the planes with more than ``bent_fraction`` of their samples that far (two
         surfaces fused into one plane: a wall and furniture in front of it, a wall and a door in its niche)."""
