@@ -1,0 +1,88 @@
+"""A prepared suite saved to disk and loaded back evaluates exactly as the one in memory; bad directories are named."""
+
+import json
+
+import numpy as np
+import pytest
+
+from reloc.evaluation.prepared_io import PreparedSuiteError, load_prepared, save_prepared
+from reloc.evaluation.suite import prepare_suite, quick_spec
+
+
+@pytest.fixture(scope="module")
+def prepared():
+    spec = quick_spec(queries_per_kind=2, negatives_per_scene=2)  # office and living room
+    return prepare_suite(spec)
+
+
+@pytest.fixture
+def saved(prepared, tmp_path):
+    save_prepared(tmp_path / "suite", prepared, {"commit": "abc", "mapping": {"fuse_check_bridged": True}})
+    return tmp_path / "suite"
+
+
+def _key(outcome):
+    d = outcome.to_dict()
+    d.pop("total_ms")
+    d.pop("timings_ms")
+    return d
+
+
+def test_a_saved_suite_evaluates_exactly_as_the_one_in_memory(prepared, saved):
+    loaded, meta = load_prepared(saved)
+    assert meta == {"commit": "abc", "mapping": {"fuse_check_bridged": True}}
+    assert loaded.spec == prepared.spec
+    for name in prepared.spec.scenes:
+        a, b = prepared.queries[name], loaded.queries[name]
+        assert [q.name for q in a] == [q.name for q in b]
+        for qa, qb in zip(a, b):
+            assert qa.ambiguous == qb.ambiguous and qa.frames_left_out == qb.frames_left_out
+            np.testing.assert_array_equal(qa.T_world_cam, qb.T_world_cam)
+            np.testing.assert_array_equal(qa.submap.normals, qb.submap.normals)
+            np.testing.assert_array_equal(qa.submap.sample_points, qb.submap.sample_points)
+        assert len(loaded.maps[name]) == len(prepared.maps[name])
+    before = [_key(o) for r in prepared.evaluate() for o in r.outcomes]
+    after = [_key(o) for r in loaded.evaluate() for o in r.outcomes]
+    assert len(before) == 2 * (4 + 2)
+    assert after == before
+    assert sum(o["label"] == "TP" for o in before) >= 4  # the suite is not trivially all rejected
+
+
+def test_a_save_that_did_not_finish_does_not_load(saved):
+    (saved / "suite.json").unlink()
+    with pytest.raises(PreparedSuiteError, match=r"suite\.json: missing"):
+        load_prepared(saved)
+
+
+def test_a_missing_directory_is_named(tmp_path):
+    with pytest.raises(PreparedSuiteError, match="no such directory"):
+        load_prepared(tmp_path / "nowhere")
+
+
+def test_another_format_version_is_refused(saved):
+    index = json.loads((saved / "suite.json").read_text())
+    index["format_version"] = 99
+    (saved / "suite.json").write_text(json.dumps(index))
+    with pytest.raises(PreparedSuiteError, match="format version 99"):
+        load_prepared(saved)
+
+
+def test_a_truncated_query_file_is_named(saved):
+    path = saved / "queries" / "office.npz"
+    path.write_bytes(path.read_bytes()[:200])
+    with pytest.raises(PreparedSuiteError, match=r"queries/office\.npz"):
+        load_prepared(saved)
+
+
+def test_a_corrupted_map_is_named(saved):
+    (saved / "maps" / "living_room.npz").write_bytes(b"not a map")
+    with pytest.raises(PreparedSuiteError, match=r"maps/living_room\.npz.*not a map file"):
+        load_prepared(saved)
+
+
+def test_a_spec_field_this_program_does_not_know_is_refused(saved):
+    index = json.loads((saved / "suite.json").read_text())
+    index["spec"]["lighting"] = "dim"
+    (saved / "suite.json").write_text(json.dumps(index))
+    with pytest.raises(PreparedSuiteError, match="unknown field.*lighting"):
+        load_prepared(saved)
