@@ -27,21 +27,29 @@ the queries' submaps, ``NAME_deg`` for a ``NAME_rad`` field); with either, give 
 are not replaced. ``--variant KEY=VALUE[,KEY=VALUE...]`` (repeatable) adds a matcher with those MatchingParams
 changed (``NAME_deg`` for a ``NAME_rad`` field in degrees), evaluated on the same maps and queries as ours, and
 prints every query whose outcome it changes.
+
+Preparing a source (rendering, extraction, map fusion, submaps) takes minutes; relocalizing its 240 queries takes
+seconds. ``--save-prepared DIR`` keeps each source's maps and queries (``DIR/<source>_<noise>/``, .npz and JSON, no
+pickle) and ``--prepared DIR`` loads them instead of preparing, for trying matcher settings (``--variant``) in
+seconds: the suite's options, ``--set`` and ``--mapping-set`` must be those it was saved with (an error says which
+differ), and a warning names the commit it was prepared at when that is not this one (``--ablation`` still prepares
+its own).
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import math
 import re
 import sys
 import time
-from dataclasses import asdict, replace
+from dataclasses import asdict, fields, replace
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from _common import parse_overrides, print_table, results_name, write_results  # noqa: E402
+from _common import git_info, parse_overrides, print_table, results_name, write_results  # noqa: E402
 
 
 def paper_settings(params):
@@ -85,6 +93,12 @@ def _row(label, s):
             s.median_ms]
 
 
+def _spec_difference(have, want) -> str:
+    """The fields in which two EvalSpecs differ, as ``name: saved X, asked Y``."""
+    return "; ".join(f"{f.name}: saved {getattr(have, f.name)!r}, asked {getattr(want, f.name)!r}"
+                     for f in fields(want) if getattr(have, f.name) != getattr(want, f.name))
+
+
 HEAD = ["", "TP", "TN", "FP", "FN", "amb", "P[%]", "R[%]", "t_err[cm]", "r_err[deg]", "mean[ms]", "med[ms]"]
 
 
@@ -116,10 +130,17 @@ def main() -> int:
     ap.add_argument("--map-seed", type=int, default=EvalSpec.map_seed,
                     help="Seed of the mapping trajectories and their noise.")
     ap.add_argument("--name", default="reloc_accuracy", help="Result file stem in benchmarks/results/.")
+    ap.add_argument("--save-prepared", metavar="DIR", type=Path, default=None,
+                    help="Also save each source's maps and queries under DIR/<source>_<noise>/ (about 10 MB each).")
+    ap.add_argument("--prepared", metavar="DIR", type=Path, default=None,
+                    help="Load the maps and queries saved by --save-prepared instead of preparing them (seconds "
+                         "instead of minutes): for comparing matchers (--variant). The suite, --set and "
+                         "--mapping-set must be those it was saved with.")
     args = ap.parse_args()
 
     from reloc._numba import warm_up
     from reloc.evaluation.metrics import summarize
+    from reloc.evaluation.prepared_io import PreparedSuiteError, load_prepared, save_prepared
     from reloc.evaluation.suite import SCENES, prepare_suite, run_ablation
     from reloc.extraction import ExtractionParams
     from reloc.mapping import MappingParams
@@ -138,6 +159,14 @@ def main() -> int:
         args.noise, args.queries, args.negatives, args.map_frames = "kinect", 3, 6, 800
         args.scenes = args.scenes or "living_room,office"
     scenes = tuple(args.scenes.split(",")) if args.scenes else SCENES
+    sources = [("extraction", n) for n in args.noise.split(",")]
+    if not args.no_oracle:
+        sources.append(("oracle", args.noise.split(",")[0]))
+    if args.prepared is not None:
+        for source, noise in sources:
+            if not (args.prepared / f"{source}_{noise}" / "suite.json").is_file():
+                ap.error(f"--prepared: {args.prepared / f'{source}_{noise}'} holds no prepared suite (save one with "
+                         "--save-prepared and the same options)")
     warm_up(("reloc.matching._kernels", "reloc.mapping._kernels", "reloc.extraction.pipeline", "sim.render"))
     ours = MatchingParams()
     methods = {"ours": ours, "ours, no optimistic rivals": replace(ours, optimistic_rivals=False),
@@ -147,9 +176,10 @@ def main() -> int:
                     query_spacing_frames=max(60, 3 * args.window + 30),
                     map_trajectories=(("robot", args.map_frames), ("handheld", args.map_frames)),
                     query_seed=args.query_seed, map_seed=args.map_seed)
-    sources = [("extraction", n) for n in args.noise.split(",")]
-    if not args.no_oracle:
-        sources.append(("oracle", args.noise.split(",")[0]))
+    # What a saved suite was prepared with (a loaded one must match): the overrides as JSON reads them back.
+    built_with = json.loads(json.dumps({"set": parse_overrides(args.set),
+                                        "mapping_set": parse_overrides(args.mapping_set, "--mapping-set")}))
+    here = git_info()
     summary_rows, results = [], {}
     for source, noise in sources:
         spec = replace(base, plane_source=source, noise=noise)
@@ -157,8 +187,32 @@ def main() -> int:
             # The stereo model is the OAK-D class camera's, at its own resolution (its noise grows as z^2 / (f b)).
             spec = replace(spec, camera="oak-d", width=640, height=400)
         t0 = time.perf_counter()
-        prepared = prepare_suite(spec, mapping, extraction=extraction)
+        origin = None  # where a loaded suite came from (the results name it)
+        if args.prepared is not None:
+            where = args.prepared / f"{source}_{noise}"
+            try:
+                prepared, meta = load_prepared(where)
+            except PreparedSuiteError as exc:
+                ap.error(f"--prepared: {exc}")
+            if prepared.spec != spec:
+                ap.error(f"--prepared: {where} holds another suite than this command asks for: "
+                         f"{_spec_difference(prepared.spec, spec)}")
+            if meta.get("built_with") != built_with:
+                ap.error(f"--prepared: {where} was prepared with {meta.get('built_with')}, this command asks for "
+                         f"{built_with}")
+            if meta.get("commit") != here["commit"] or meta.get("dirty") or here["dirty"]:
+                print(f"warning: {where} was prepared at commit {meta.get('commit')}"
+                      f"{' with uncommitted changes' if meta.get('dirty') else ''}, this is {here['commit']}"
+                      f"{' with uncommitted changes' if here['dirty'] else ''}: its maps and queries come from "
+                      "the extraction and fusion of then")
+            origin = {"dir": str(where), "commit": meta.get("commit"), "dirty": meta.get("dirty")}
+        else:
+            prepared = prepare_suite(spec, mapping, extraction=extraction)
         prep_s = time.perf_counter() - t0
+        if args.save_prepared is not None:
+            saved = save_prepared(args.save_prepared / f"{source}_{noise}", prepared,
+                                  {"built_with": built_with, "commit": here["commit"], "dirty": here["dirty"]})
+            print(f"{source}/{noise}: saved the prepared suite to {saved.parent}")
         # The windows' odometry is the ground truth here, so every frame the odometry check leaves out is a loss.
         left_out = {name: sum(q.frames_left_out for q in qs) for name, qs in prepared.queries.items()}
         n_windows = sum(len(qs) for qs in prepared.queries.values())
@@ -189,6 +243,7 @@ def main() -> int:
             summary_rows.append(_row(f"{source}/{noise}: {label}", total))
             results[key] = {
                 "prepare_s": prep_s,
+                "prepared_from": origin,
                 "frames_left_out": left_out,
                 "map_planes": {r.scene: r.map_planes for r in rows},
                 "map_consistency": consistency,

@@ -168,3 +168,24 @@ def test_the_real_clip_benchmark_refuses_a_bad_setting_before_measuring():
     done = subprocess.run([sys.executable, str(root / "benchmarks" / "reloc_real.py"), "--variant",
                            "min_ambiguity_ratio=1.4,nope=1"], capture_output=True, text=True, timeout=120)
     assert done.returncode == 2 and "MatchingParams: unknown parameter 'nope'" in done.stderr, done.stderr
+
+
+def test_the_accuracy_benchmark_refuses_a_missing_prepared_suite_before_measuring(tmp_path):
+    import subprocess
+
+    root = Path(__file__).resolve().parents[1]
+    done = subprocess.run([sys.executable, str(root / "benchmarks" / "reloc_accuracy.py"), "--noise", "stereo",
+                           "--no-oracle", "--prepared", str(tmp_path)], capture_output=True, text=True, timeout=120)
+    assert done.returncode == 2, done.stderr
+    assert f"--prepared: {tmp_path / 'extraction_stereo'} holds no prepared suite" in done.stderr, done.stderr
+
+
+def test_the_accuracy_benchmark_names_how_a_prepared_suite_differs():
+    from reloc_accuracy import _spec_difference
+
+    from reloc.evaluation.suite import EvalSpec
+
+    a = EvalSpec(query_seed=101, noise="stereo")
+    assert _spec_difference(a, a) == ""
+    assert _spec_difference(a, EvalSpec(query_seed=202, noise="stereo", map_seed=3)) == (
+        "map_seed: saved 1, asked 3; query_seed: saved 101, asked 202")
