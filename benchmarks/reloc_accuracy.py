@@ -149,8 +149,10 @@ def main() -> int:
 
     try:
         results_name(args.name)
-        extraction = ExtractionParams().with_(**parse_overrides(args.set)) if args.set else None
-        mapping = MappingParams().with_(**parse_overrides(args.mapping_set, "--mapping-set"))
+        set_overrides = parse_overrides(args.set)
+        mapping_overrides = parse_overrides(args.mapping_set, "--mapping-set")
+        extraction = ExtractionParams().with_(**set_overrides) if set_overrides else None
+        mapping = MappingParams().with_(**mapping_overrides)
         variants = {f"ours with {spec}": parse_variant(spec, MatchingParams()) for spec in args.variant}
     except ValueError as exc:
         ap.error(str(exc))
@@ -177,8 +179,7 @@ def main() -> int:
                     map_trajectories=(("robot", args.map_frames), ("handheld", args.map_frames)),
                     query_seed=args.query_seed, map_seed=args.map_seed)
     # What a saved suite was prepared with (a loaded one must match): the overrides as JSON reads them back.
-    built_with = json.loads(json.dumps({"set": parse_overrides(args.set),
-                                        "mapping_set": parse_overrides(args.mapping_set, "--mapping-set")}))
+    built_with = json.loads(json.dumps({"set": set_overrides, "mapping_set": mapping_overrides}))
     here = git_info()
     summary_rows, results = [], {}
     for source, noise in sources:

@@ -86,3 +86,22 @@ def test_a_spec_field_this_program_does_not_know_is_refused(saved):
     (saved / "suite.json").write_text(json.dumps(index))
     with pytest.raises(PreparedSuiteError, match="unknown field.*lighting"):
         load_prepared(saved)
+
+
+def test_a_query_file_that_is_not_an_archive_is_named(saved):
+    (saved / "queries" / "living_room.npz").write_bytes(b"\x80\x04K\x01.")
+    with pytest.raises(PreparedSuiteError, match=r"queries/living_room\.npz.*not an \.npz \(zip\) archive"):
+        load_prepared(saved)
+
+
+def test_saving_over_a_suite_removes_its_index_first(prepared, saved, monkeypatch):
+    import reloc.evaluation.prepared_io as io
+
+    def interrupted(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(io, "save_map", interrupted)
+    with pytest.raises(KeyboardInterrupt):
+        save_prepared(saved, prepared)
+    with pytest.raises(PreparedSuiteError, match=r"suite\.json: missing"):
+        load_prepared(saved)

@@ -42,9 +42,10 @@ class PreparedSuiteError(ValueError):
 
 def save_prepared(directory, prepared, meta: dict | None = None) -> Path:
     """Write ``prepared`` (a :class:`~reloc.evaluation.suite.Prepared`) into ``directory``; returns the path of
-    its ``suite.json``. ``meta`` (JSON-serialisable) is stored beside the spec and returned by
-    :func:`load_prepared` as ``prepared_meta``."""
+    its ``suite.json``. ``meta`` (JSON-serialisable) is stored beside the spec; :func:`load_prepared` returns it.
+    Saving over an earlier suite first removes its ``suite.json``, so an interrupted save never loads as either."""
     directory = Path(directory)
+    (directory / "suite.json").unlink(missing_ok=True)
     index = {"format": PREPARED_FORMAT, "format_version": PREPARED_FORMAT_VERSION, "spec": asdict(prepared.spec),
              "meta": dict(meta or {}), "scenes": {}}
     for name in prepared.spec.scenes:
@@ -120,6 +121,9 @@ def load_prepared(directory):
         entry = scenes[name]
         try:
             seconds[name] = float(entry["map_seconds"])
+            with open(qpath, "rb") as fh:
+                if fh.read(4) != b"PK\x03\x04":  # else numpy calls any non-zip file "pickled data"
+                    raise ValueError("not an .npz (zip) archive")
             with np.load(qpath, allow_pickle=False) as npz:
                 arrays = {k: npz[k] for k in npz.files}
             qs = []
