@@ -131,7 +131,7 @@ def main() -> int:
                     help="Seed of the mapping trajectories and their noise.")
     ap.add_argument("--name", default="reloc_accuracy", help="Result file stem in benchmarks/results/.")
     ap.add_argument("--save-prepared", metavar="DIR", type=Path, default=None,
-                    help="Also save each source's maps and queries under DIR/<source>_<noise>/ (about 10 MB each).")
+                    help="Also save each source's maps and queries under DIR/<source>_<noise>/ (8-15 MB each).")
     ap.add_argument("--prepared", metavar="DIR", type=Path, default=None,
                     help="Load the maps and queries saved by --save-prepared instead of preparing them (seconds "
                          "instead of minutes): for comparing matchers (--variant). The suite, --set and "

@@ -424,13 +424,11 @@ def test_a_plane_of_two_layers_does_not_join_a_surface(max_far_fraction):
     # fitted between the two (x = 0.1375): its samples' median offset from the face's map plane is 0, so only the share
     # of far samples tells it is not the face. (The test is one-way, the new plane's samples against the map plane: a
     # two-layer plane already in the map, fitted on one of its layers, still takes in a plane on that layer.)
-    from reloc.evaluation.synthetic import Rect
+    from reloc.evaluation.synthetic import Rect, planes_from_points
 
     face = _one_plane(Rect((0.22, 2.75, 1.025), (1, 0, 0), (0, 1, 0), 0.7, 0.325))  # y 2.05..3.45
     on_face = Rect((0.22, 3.7, 1.025), (1, 0, 0), (0, 1, 0), 0.25, 0.325).grid(0.05)  # y 3.45..3.95, touching it
     on_wall = Rect((0.0, 4.35, 1.025), (1, 0, 0), (0, 1, 0), 0.15, 0.325).grid(0.05)  # y 4.2..4.5, 22 cm behind
-    from reloc.evaluation.synthetic import planes_from_points
-
     mixed = planes_from_points([np.concatenate([on_face, on_wall])], np.array([[1.0, 0, 0]]), np.array([-0.1375]),
                                spacing=0.05, frame="map", gravity=np.array([0.0, 0.0, -1.0]))
     far = np.abs(mixed.sample_points[:, 0] - 0.22) > 0.06
