@@ -5,11 +5,11 @@ Preparing the suite is the slow part of an evaluation (80-200 s a noise model on
 2026-11-27, against seconds for relocalizing its 240 queries). :func:`save_prepared` writes a
 :class:`~reloc.evaluation.suite.Prepared` into a directory: ``maps/<scene>.npz`` (map files,
 :func:`reloc.mapping.save_map`), ``queries/<scene>.npz`` (each query's submap as plain arrays and its ground-truth
-pose) and, last, ``suite.json`` (format and version, the :class:`~reloc.evaluation.suite.EvalSpec`, each query's name, ambiguity label and timings, and whatever ``meta``
-the caller adds, such as the parameters and the commit that built it). Every file is written atomically and
-``suite.json`` comes last, so an interrupted save leaves no directory that loads. No pickle: ``.npz`` read with
-``allow_pickle=False`` and JSON. :func:`load_prepared` raises :class:`PreparedSuiteError` naming the file and the
-problem for anything it cannot read.
+pose) and, last, ``suite.json`` (format and version, the :class:`~reloc.evaluation.suite.EvalSpec`, each query's name,
+ambiguity label and timings, and whatever ``meta`` the caller adds, such as the parameters and the commit that built
+it). Every file is written atomically and ``suite.json`` comes last, so an interrupted save leaves no directory that
+loads. No pickle: ``.npz`` read with ``allow_pickle=False`` and JSON. :func:`load_prepared` raises
+:class:`PreparedSuiteError` naming the file and the problem for anything it cannot read.
 """
 
 from __future__ import annotations
