@@ -31,9 +31,9 @@ prints every query whose outcome it changes.
 Preparing a source (rendering, extraction, map fusion, submaps) takes minutes; relocalizing its 240 queries takes
 seconds. ``--save-prepared DIR`` keeps each source's maps and queries (``DIR/<source>_<noise>/``, .npz and JSON, no
 pickle) and ``--prepared DIR`` loads them instead of preparing, for trying matcher settings (``--variant``) in
-seconds: the suite's options, ``--set`` and ``--mapping-set`` must be those it was saved with (an error says which
-differ), and a warning names the commit it was prepared at when that is not this one (``--ablation`` still prepares
-its own).
+seconds: the suite's options and every extraction and fusion parameter (defaults, ``--set`` and ``--mapping-set``)
+must be those it was saved with (an error says which differ), and a warning names the commit it was prepared at
+when that is not this one (``--ablation`` still prepares its own).
 """
 
 from __future__ import annotations
@@ -44,7 +44,7 @@ import math
 import re
 import sys
 import time
-from dataclasses import asdict, fields, replace
+from dataclasses import asdict, replace
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
@@ -93,12 +93,6 @@ def _row(label, s):
             s.median_ms]
 
 
-def _spec_difference(have, want) -> str:
-    """The fields in which two EvalSpecs differ, as ``name: saved X, asked Y``."""
-    return "; ".join(f"{f.name}: saved {getattr(have, f.name)!r}, asked {getattr(want, f.name)!r}"
-                     for f in fields(want) if getattr(have, f.name) != getattr(want, f.name))
-
-
 HEAD = ["", "TP", "TN", "FP", "FN", "amb", "P[%]", "R[%]", "t_err[cm]", "r_err[deg]", "mean[ms]", "med[ms]"]
 
 
@@ -140,7 +134,7 @@ def main() -> int:
 
     from reloc._numba import warm_up
     from reloc.evaluation.metrics import summarize
-    from reloc.evaluation.prepared_io import PreparedSuiteError, load_prepared, save_prepared
+    from reloc.evaluation.prepared_io import PreparedSuiteError, built_with, load_prepared, mismatch, save_prepared
     from reloc.evaluation.suite import SCENES, prepare_suite, run_ablation
     from reloc.extraction import ExtractionParams
     from reloc.mapping import MappingParams
@@ -178,8 +172,8 @@ def main() -> int:
                     query_spacing_frames=max(60, 3 * args.window + 30),
                     map_trajectories=(("robot", args.map_frames), ("handheld", args.map_frames)),
                     query_seed=args.query_seed, map_seed=args.map_seed)
-    # What a saved suite was prepared with (a loaded one must match): the overrides as JSON reads them back.
-    built_with = json.loads(json.dumps({"set": set_overrides, "mapping_set": mapping_overrides}))
+    # The overrides, as JSON reads them back, go with a saved suite for the record (every parameter is compared).
+    overrides = json.loads(json.dumps({"set": set_overrides, "mapping_set": mapping_overrides}))
     here = git_info()
     summary_rows, results = [], {}
     for source, noise in sources:
@@ -195,12 +189,9 @@ def main() -> int:
                 prepared, meta = load_prepared(where)
             except PreparedSuiteError as exc:
                 ap.error(f"--prepared: {exc}")
-            if prepared.spec != spec:
-                ap.error(f"--prepared: {where} holds another suite than this command asks for: "
-                         f"{_spec_difference(prepared.spec, spec)}")
-            if meta.get("built_with") != built_with:
-                ap.error(f"--prepared: {where} was prepared with {meta.get('built_with')}, this command asks for "
-                         f"{built_with}")
+            problems = mismatch(prepared, meta, spec, built_with(spec, extraction, mapping))
+            if problems:
+                ap.error(f"--prepared: {where} holds another suite than this command asks for: {'; '.join(problems)}")
             if meta.get("commit") != here["commit"] or meta.get("dirty") or here["dirty"]:
                 print(f"warning: {where} was prepared at commit {meta.get('commit')}"
                       f"{' with uncommitted changes' if meta.get('dirty') else ''}, this is {here['commit']}"
@@ -212,7 +203,8 @@ def main() -> int:
         prep_s = time.perf_counter() - t0
         if args.save_prepared is not None:
             saved = save_prepared(args.save_prepared / f"{source}_{noise}", prepared,
-                                  {"built_with": built_with, "commit": here["commit"], "dirty": here["dirty"]})
+                                  {"params": built_with(spec, extraction, mapping), "overrides": overrides,
+                                   "commit": here["commit"], "dirty": here["dirty"]})
             print(f"{source}/{noise}: saved the prepared suite to {saved.parent}")
         # The windows' odometry is the ground truth here, so every frame the odometry check leaves out is a loss.
         left_out = {name: sum(q.frames_left_out for q in qs) for name, qs in prepared.queries.items()}

@@ -180,12 +180,3 @@ def test_the_accuracy_benchmark_refuses_a_missing_prepared_suite_before_measurin
     assert f"--prepared: {tmp_path / 'extraction_stereo'} holds no prepared suite" in done.stderr, done.stderr
 
 
-def test_the_accuracy_benchmark_names_how_a_prepared_suite_differs():
-    from reloc_accuracy import _spec_difference
-
-    from reloc.evaluation.suite import EvalSpec
-
-    a = EvalSpec(query_seed=101, noise="stereo")
-    assert _spec_difference(a, a) == ""
-    assert _spec_difference(a, EvalSpec(query_seed=202, noise="stereo", map_seed=3)) == (
-        "map_seed: saved 1, asked 3; query_seed: saved 101, asked 202")

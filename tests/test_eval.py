@@ -137,3 +137,43 @@ def test_eval_command_runs_a_replicate_on_other_seeds(tmp_path):
                 for o in d["outcomes"]["Ours"]]
 
     assert views(base) != views(rep)
+
+
+def test_eval_command_saves_a_prepared_suite_and_evaluates_it_again(tmp_path):
+    """``reloc eval --save-prepared DIR`` then ``--prepared DIR``: the same outcomes without building anything; a
+    config whose matching differs is evaluated on the saved suite, one whose extraction differs is refused with the
+    parameter named, and ``--ablation`` does not take a prepared suite."""
+    from click.testing import CliRunner
+
+    from reloc.cli import cli
+
+    suite = tmp_path / "suite"
+    base = ["eval", "--quick", "--scenes", "living_room", "--quiet"]
+
+    def run(*args, code=0):
+        res = CliRunner().invoke(cli, [*base, *args])
+        assert res.exit_code == code, res.output
+        return res
+
+    def outcomes(path):
+        return [{k: v for k, v in o.items() if k not in ("total_ms", "timings_ms")}
+                for o in json.loads(path.read_text())["outcomes"]["Ours"]]
+
+    saved = run("--json", str(tmp_path / "a.json"), "--save-prepared", str(suite))
+    assert f"saved the prepared suite to {suite}" in saved.output
+    run("--json", str(tmp_path / "b.json"), "--prepared", str(suite))
+    first = outcomes(tmp_path / "a.json")
+    assert len(first) == 8 and sum(o["label"] == "TP" for o in first) >= 3
+    assert outcomes(tmp_path / "b.json") == first
+    # Another matching setting on the same maps and queries: no view matches 40 planes, so every one is rejected.
+    strict = tmp_path / "strict.yaml"
+    strict.write_text("evaluation:\n  min_matched_planes: 40\n")
+    run("--json", str(tmp_path / "c.json"), "--prepared", str(suite), "--config", str(strict))
+    assert [o["status"] for o in outcomes(tmp_path / "c.json")] == ["rejected"] * 8
+    other = tmp_path / "other.yaml"
+    other.write_text("extraction:\n  voxel_size_m: 0.3\n")
+    refused = run("--prepared", str(suite), "--config", str(other), code=2)
+    assert "extraction.voxel_size_m: saved 0.25, asked 0.3" in refused.output
+    assert "holds another suite" in run("--prepared", str(suite), "--query-seed", "7", code=2).output
+    assert "no such directory" in run("--prepared", str(tmp_path / "nowhere"), code=2).output
+    assert "without --ablation" in run("--ablation", "--prepared", str(suite), code=2).output

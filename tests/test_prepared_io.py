@@ -105,3 +105,45 @@ def test_saving_over_a_suite_removes_its_index_first(prepared, saved, monkeypatc
         save_prepared(saved, prepared)
     with pytest.raises(PreparedSuiteError, match=r"suite\.json: missing"):
         load_prepared(saved)
+
+
+def test_a_loaded_suite_is_checked_against_every_parameter_it_was_built_with(prepared, tmp_path):
+    """``built_with`` records every extraction (as tuned to the sensor) and fusion parameter, defaults included;
+    ``mismatch`` names each spec field and parameter that differs, and a suite that recorded none."""
+    from dataclasses import replace
+
+    from reloc.evaluation.prepared_io import built_with, mismatch
+    from reloc.extraction import ExtractionParams
+    from reloc.mapping import MappingParams
+
+    spec = prepared.spec  # ground-truth planes: no extraction to record
+    params = built_with(spec)
+    assert params["extraction"] is None
+    assert params["mapping"] == json.loads(json.dumps(dataclasses_asdict(MappingParams())))
+    extracted = replace(spec, plane_source="extraction")
+    tuned = built_with(extracted)["extraction"]
+    assert (tuned["noise_model"], tuned["noise_coeff"], tuned["voxel_size_m"]) == ("kinect", 1.425e-3, 0.25)
+    save_prepared(tmp_path / "s", prepared, {"params": params})
+    loaded, meta = load_prepared(tmp_path / "s")
+    assert mismatch(loaded, meta, spec, built_with(spec)) == []
+    other = replace(spec, query_seed=7, map_seed=5)
+    assert mismatch(loaded, meta, other, built_with(other, mapping=MappingParams(fuse_max_offset_m=0.05))) == [
+        "map_seed: saved 1, asked 5",
+        "query_seed: saved 101, asked 7",
+        "mapping.fuse_max_offset_m: saved 0.03, asked 0.05",
+    ]
+    assert mismatch(loaded, meta, extracted, built_with(extracted)) == [
+        "plane_source: saved 'oracle', asked 'extraction'", f"extraction: saved None, asked {tuned!r}"]
+    # Between two extracted suites, each parameter that differs is named (a default changed since counts too).
+    meta_ext = {"params": built_with(extracted)}
+    ext = ExtractionParams(voxel_size_m=0.3, min_points_per_voxel=20)
+    assert mismatch(replace(loaded, spec=extracted), meta_ext, extracted, built_with(extracted, ext)) == [
+        "extraction.min_points_per_voxel: saved 12, asked 20", "extraction.voxel_size_m: saved 0.25, asked 0.3"]
+    assert mismatch(loaded, {}, spec, params) == [
+        "no parameters recorded (saved by an older version): prepare it again"]
+
+
+def dataclasses_asdict(obj):
+    from dataclasses import asdict
+
+    return asdict(obj)

@@ -31,9 +31,16 @@ import click
               help="YAML config (defaults otherwise).")
 @click.option("--json", "json_path", type=click.Path(dir_okay=False), default=None,
               help="Write the tables and every query's outcome as JSON.")
+@click.option("--save-prepared", type=click.Path(file_okay=False), default=None,
+              help="Also save the suite's maps and query submaps in this directory (.npz and JSON, 8-15 MB for the "
+                   "full suite), to evaluate them again with --prepared.")
+@click.option("--prepared", "prepared_dir", type=click.Path(file_okay=False), default=None,
+              help="Load the maps and queries saved by --save-prepared instead of building them (seconds instead "
+                   "of minutes): for trying matching settings of the config. The suite's options and every "
+                   "extraction and fusion parameter must be those it was saved with.")
 @click.option("--quiet", is_flag=True, help="No progress bar.")
 def eval_cmd(scenes, source, queries, negatives, window, map_frames, noise, query_seed, map_seed, ablation, quick,
-             config_path, json_path, quiet):
+             config_path, json_path, save_prepared, prepared_dir, quiet):
     """Relocalization accuracy like the paper's Table 1 (per scene: TP, TN, FP, FN, P, R, median pose errors, time).
 
     Positives come from trajectories of each scene that were not used to build its map; negatives from the other
@@ -41,6 +48,10 @@ def eval_cmd(scenes, source, queries, negatives, window, map_frames, noise, quer
     accepted FP. Positives whose view repeats elsewhere in the scene (identical rooms, symmetric room) must be
     rejected: a rejection counts as TN, any pose as FP. Times are per relocalization (extraction and submap
     building reported apart).
+
+    Building the maps and queries is the slow part; --save-prepared keeps them and --prepared evaluates them again
+    with another config's matching settings (its extraction and fusion settings must be the saved ones; code
+    changed since the save is not detected).
     """
     import json
     from dataclasses import asdict, replace
@@ -51,10 +62,15 @@ def eval_cmd(scenes, source, queries, negatives, window, map_frames, noise, quer
     from reloc.atomic import atomic_write_text
     from reloc.config import load_config
     from reloc.evaluation.metrics import format_table, summarize
-    from reloc.evaluation.suite import SCENES, EvalSpec, quick_spec, run_ablation, run_suite
+    from reloc.evaluation.prepared_io import PreparedSuiteError, built_with, load_prepared, mismatch
+    from reloc.evaluation.prepared_io import save_prepared as save_prepared_suite
+    from reloc.evaluation.suite import SCENES, EvalSpec, prepare_suite, quick_spec, run_ablation
     from reloc.mapping import MappingParams
     from reloc.matching import ABLATIONS, MatchingParams
 
+    if ablation and (save_prepared or prepared_dir):
+        raise click.UsageError("--save-prepared and --prepared work without --ablation only (its VR-NE and VR-NM "
+                               "rows need maps and queries of their own)")
     cfg = load_config(config_path)
     names = tuple(s.strip() for s in scenes.split(",")) if scenes else SCENES
     unknown = [s for s in names if s not in SCENES + ("random", "building")]
@@ -90,13 +106,30 @@ def eval_cmd(scenes, source, queries, negatives, window, map_frames, noise, quer
             if n and not description.endswith((": map", ": queries")):
                 bar.update(n)
 
+    params = built_with(spec, extraction, mapping)
+    loaded = None
+    if prepared_dir:
+        try:
+            loaded, meta = load_prepared(prepared_dir)
+        except PreparedSuiteError as exc:
+            raise click.BadParameter(str(exc), param_hint="--prepared") from None
+        problems = mismatch(loaded, meta, spec, params)
+        if problems:
+            raise click.BadParameter(f"{prepared_dir} holds another suite than this command asks for: "
+                                     + "; ".join(problems), param_hint="--prepared")
     try:
         if ablation:
             results = run_ablation(spec, variants, matching, mapping, extraction=extraction, progress=progress)
         else:
-            results = {"Ours": run_suite(spec, matching, mapping, extraction=extraction, progress=progress)}
+            if loaded is None:
+                loaded = prepare_suite(spec, mapping, extraction=extraction, progress=progress)
+            if save_prepared:
+                saved = save_prepared_suite(save_prepared, loaded, {"params": params, "program": "reloc eval"})
+            results = {"Ours": loaded.evaluate(matching, progress)}
     finally:
         bar.close()
+    if save_prepared:
+        click.echo(f"saved the prepared suite to {saved.parent}")
 
     out = {"spec": asdict(spec), "tables": {}, "outcomes": {}}
     if not ablation:

@@ -9,7 +9,9 @@ pose) and, last, ``suite.json`` (format and version, the :class:`~reloc.evaluati
 ambiguity label and timings, and whatever ``meta`` the caller adds, such as the parameters and the commit that built
 it). Every file is written atomically and ``suite.json`` comes last, so an interrupted save leaves no directory that
 loads. No pickle: ``.npz`` read with ``allow_pickle=False`` and JSON. :func:`load_prepared` raises
-:class:`PreparedSuiteError` naming the file and the problem for anything it cannot read.
+:class:`PreparedSuiteError` naming the file and the problem for anything it cannot read. :func:`built_with` records
+every extraction and fusion parameter a suite is built from (callers store it in ``meta["params"]``) and
+:func:`mismatch` names what differs between a loaded suite and the one asked for.
 """
 
 from __future__ import annotations
@@ -25,7 +27,8 @@ import numpy as np
 from reloc.atomic import atomic_write, atomic_write_text
 from reloc.mapping import MapFileError, load_map, save_map
 
-__all__ = ["PREPARED_FORMAT", "PREPARED_FORMAT_VERSION", "PreparedSuiteError", "save_prepared", "load_prepared"]
+__all__ = ["PREPARED_FORMAT", "PREPARED_FORMAT_VERSION", "PreparedSuiteError", "built_with", "load_prepared",
+           "mismatch", "save_prepared"]
 
 PREPARED_FORMAT = "voxelplane-reloc prepared suite"
 PREPARED_FORMAT_VERSION = 1
@@ -140,3 +143,36 @@ def load_prepared(directory):
             raise PreparedSuiteError(qpath, f"unreadable or inconsistent with suite.json ({exc!r})") from None
         queries[name] = qs
     return Prepared(spec, maps, seconds, queries), index.get("meta", {})
+
+
+def built_with(spec, extraction=None, mapping=None) -> dict:
+    """What the maps and queries of ``spec`` are built from, JSON-ready: every field of the extraction parameters
+    as tuned to the spec's sensor (None for ground-truth planes) and of the map fusion parameters. Saved in a
+    suite's ``meta["params"]`` and compared by :func:`mismatch` when it is loaded, so a default changed since the
+    suite was saved is caught like an override (what the code does with them is not: a commit check is the
+    caller's)."""
+    from reloc.evaluation.suite import extraction_for_sensor
+    from reloc.mapping import MappingParams
+
+    ext = asdict(extraction_for_sensor(spec, extraction)) if spec.plane_source == "extraction" else None
+    return json.loads(json.dumps({"extraction": ext, "mapping": asdict(mapping or MappingParams())}))
+
+
+def mismatch(prepared, meta: dict, spec, params: dict) -> list[str]:
+    """How a loaded suite (``prepared``, ``meta``) differs from the one asked for (``spec``, ``params`` from
+    :func:`built_with`): one ``"name: saved X, asked Y"`` line per differing spec field or parameter; empty when
+    it is the same suite."""
+    out = [f"{f.name}: saved {getattr(prepared.spec, f.name)!r}, asked {getattr(spec, f.name)!r}"
+           for f in fields(spec) if getattr(prepared.spec, f.name) != getattr(spec, f.name)]
+    saved = meta.get("params")
+    if not isinstance(saved, dict):
+        return [*out, "no parameters recorded (saved by an older version): prepare it again"]
+    for group in ("extraction", "mapping"):
+        have, want = saved.get(group), params.get(group)
+        if not isinstance(have, dict) or not isinstance(want, dict):
+            if have != want:
+                out.append(f"{group}: saved {have!r}, asked {want!r}")
+            continue
+        out += [f"{group}.{k}: saved {have.get(k, '(none)')!r}, asked {want.get(k, '(none)')!r}"
+                for k in sorted(set(have) | set(want)) if have.get(k, "(none)") != want.get(k, "(none)")]
+    return out
