@@ -359,6 +359,13 @@ class EvaluationConfig(_Section):
         description="An unmatched submap plane (>= min_counted_area_m2) with more of its samples than this in the "
         "map's known free space contradicts the pose.",
     )
+    free_far_min_fraction: float = Field(
+        0.25, ge=0, le=1,
+        description="Free space stops short of every map surface, so a plane put across a narrow place (a wall "
+        "across a corridor) has most samples near a surface and never free: when at least this fraction of its "
+        "samples are away from every map surface, more than max_free_fraction of those in free space contradicts "
+        "the pose too (0 = off).",
+    )
     scene_uniqueness: bool = Field(True, description="Require tau_m matched planes (off = VR-NS).")
     min_matched_planes: int = Field(5, ge=3, description="tau_m: matched planes a pose needs (paper: 5).")
     min_direction_support_m2: float = Field(

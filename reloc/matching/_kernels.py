@@ -594,9 +594,9 @@ def verify_transforms(R, t, cand, plane_order, sub_normals, sub_offsets, sub_cen
                       map_normals, map_offsets, map_areas, min_area_ratio, hash_keys, hash_ptr, hash_ids, cell,
                       cos_match, max_offset, inlier_m,
                       use_projection, min_projection, use_overlap, min_overlap, min_matched, min_competitor,
-                      min_counted_area, free_keys, free_voxel, max_free_fraction, require_triplet, conflict_offset,
-                      out_match, out_proj, out_over, out_state, out_nmatched, out_explained, out_unknown, out_free,
-                      out_pass, out_free_frac):
+                      min_counted_area, free_keys, free_voxel, max_free_fraction, free_far_min, require_triplet,
+                      conflict_offset, out_match, out_proj, out_over, out_state, out_nmatched, out_explained,
+                      out_unknown, out_free, out_pass, out_free_frac):
     """Check each transform ``T_map_sub = (R[h], t[h])`` against the map.
 
     For every submap plane j (the three planes of the candidate first, then ``plane_order``), its verification
@@ -616,9 +616,13 @@ def verify_transforms(R, t, cand, plane_order, sub_normals, sub_offsets, sub_cen
     (small planes are mostly facets of curved clutter that no map holds). With ``free_keys`` (sorted voxel keys of
     the map's known free space, edge ``free_voxel``), an unmatched plane of at least ``min_counted_area`` whose
     samples fall in free space for more than ``max_free_fraction`` contradicts the map: the hypothesis fails (the
-    map saw empty space where the pose puts a surface). ``out_free`` (H,) counts such planes. ``out_state`` (H, S)
-    int8 says why each plane is unmatched: 0 matched (or not judged), 1 unknown (the map has nothing there: no
-    surface facing the same way off its plane, no free space), 2 conflict (map surfaces facing the same way, but
+    map saw empty space where the pose puts a surface). Free space is carved only up to a margin short of each
+    surface, so in a narrow place (a wall put across a 2 m corridor) most samples of such a plane are near a map
+    surface and never free; with ``free_far_min`` > 0, when at least that fraction of its samples are away from
+    every map surface (no map sample in their cell of the spatial hash), the free share of those samples is judged
+    too. ``out_free`` (H,) counts such planes. ``out_state`` (H, S) int8 says why each plane is unmatched: 0
+    matched (or not judged), 1 unknown (the map has nothing there: no surface facing the same way off its plane, no
+    free space), 2 conflict (map surfaces facing the same way, but
     more than ``conflict_offset`` off its plane, are there), 3 in known free space, 4 too small to count; with a
     ``conflict_offset`` above ``max_offset``, 5 near a surface facing the same way, between the two offsets
     (neither matched nor in conflict, nor unknown to the map);
@@ -825,6 +829,8 @@ def verify_transforms(R, t, cand, plane_order, sub_normals, sub_offsets, sub_cen
                 # there, surfaces across it as at a junction, or its own plane mapped only in part) the map does
                 # not know.
                 inside = 0
+                away = 0
+                away_free = 0
                 near = 0
                 close = 0
                 for s in range(s0, s1):
@@ -832,14 +838,21 @@ def verify_transforms(R, t, cand, plane_order, sub_normals, sub_offsets, sub_cen
                     px = R[h, 0, 0] * p[0] + R[h, 0, 1] * p[1] + R[h, 0, 2] * p[2] + t[h, 0]
                     py = R[h, 1, 0] * p[0] + R[h, 1, 1] * p[1] + R[h, 1, 2] * p[2] + t[h, 1]
                     pz = R[h, 2, 0] * p[0] + R[h, 2, 1] * p[1] + R[h, 2, 2] * p[2] + t[h, 2]
+                    is_free = False
                     if n_free_keys > 0:
                         key = _cell_of(px, py, pz, free_voxel)
                         pos = _lower_bound(free_keys, 0, n_free_keys, key)
                         if pos < n_free_keys and free_keys[pos] == key:
                             inside += 1
+                            is_free = True
                     key = _cell_of(px, py, pz, cell)
                     pos = _lower_bound(hash_keys, 0, n_keys, key)
-                    if pos < n_keys and hash_keys[pos] == key:
+                    if not (pos < n_keys and hash_keys[pos] == key):
+                        # Away from every map surface: a sample the map can judge (free space is carved up to a
+                        # margin short of each surface, so near one a sample is never free, whatever is there).
+                        away += 1
+                        away_free += 1 if is_free else 0
+                    else:
                         far_hit = False
                         close_hit = False
                         on_hit = False
@@ -862,8 +875,11 @@ def verify_transforms(R, t, cand, plane_order, sub_normals, sub_offsets, sub_cen
                             near += 1
                         elif close_hit:
                             close += 1
-                out_free_frac[h, j] = inside / m_j
-                if inside > max_free_fraction * m_j:
+                frac_free = inside / m_j
+                if free_far_min > 0.0 and away >= free_far_min * m_j and away > 0:
+                    frac_free = max(frac_free, away_free / away)
+                out_free_frac[h, j] = frac_free
+                if frac_free > max_free_fraction:
                     n_free += 1
                     out_state[h, j] = 3
                     ok = False
@@ -1096,7 +1112,7 @@ def _warmup() -> None:
         verify_transforms(Rs, ts, cand, np.arange(3, dtype=np.int32), normals, offsets, centroids, areas, vs_ptr, pts,
                           normals, offsets, areas, 0.5, uk, hptr, di, 0.25, 0.99, 0.1, 0.05, True, 0.5, use_overlap,
                           0.3, 3, 0.5,
-                          0.3, uk, 0.25, 0.5, True, 0.1, om, op, oo, ost, on, oe, ou, of, ok, off)
+                          0.3, uk, 0.25, 0.5, 0.25, True, 0.1, om, op, oo, ost, on, oe, ou, of, ok, off)
     dens = np.empty(1)
     kde_density(Rs, ts, np.ones(1), np.ones(6), dens)
     grp = np.empty(1, np.int32)

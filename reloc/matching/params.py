@@ -51,6 +51,7 @@ class MatchingParams:
     min_counted_area_m2: float = 0.3
     free_space: bool = True
     max_free_fraction: float = 0.5
+    free_far_min_fraction: float = 0.25
     match_max_angle_rad: float = math.radians(5.0)
     match_max_offset_m: float = 0.08
     # Weights and kernel density (Eq. 12-14) and the decision.
@@ -109,6 +110,9 @@ class MatchingParams:
                 f"min_explained_known_fraction: expected <= min_explained_fraction ({self.min_explained_fraction}), "
                 f"got {self.min_explained_known_fraction}"
             )
+        for name in ("max_free_fraction", "free_far_min_fraction"):
+            if getattr(self, name) > 1:
+                problems.append(f"{name}: expected a fraction in [0, 1], got {getattr(self, name)}")
         if self.min_ambiguity_ratio < 1:
             problems.append(f"min_ambiguity_ratio: expected >= 1, got {self.min_ambiguity_ratio}")
         if self.max_condition_number <= 1:
@@ -161,6 +165,7 @@ class MatchingParams:
             min_counted_area_m2=e.min_counted_area_m2,
             free_space=e.free_space,
             max_free_fraction=e.max_free_fraction,
+            free_far_min_fraction=e.free_far_min_fraction,
             match_max_angle_rad=r(e.match_max_angle_deg),
             match_max_offset_m=e.match_max_offset_m,
             kde_sigma_translation_m=e.kde_sigma_translation_m,

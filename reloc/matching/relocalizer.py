@@ -259,7 +259,7 @@ class Relocalizer:
             final_offset if tight else p.match_max_offset_m,
             min(p.projection_inlier_m, final_offset) if tight else p.projection_inlier_m, p.projection,
             p.min_projection_ratio, p.overlap, p.min_overlap, min_matched, p.min_competitor_fraction,
-            p.min_counted_area_m2, ix.free_keys, ix.free_voxel_m, p.max_free_fraction,
+            p.min_counted_area_m2, ix.free_keys, ix.free_voxel_m, p.max_free_fraction, p.free_far_min_fraction,
             require_triplet, max(final_offset, p.decision_conflict_m) if tight else p.match_max_offset_m,
             out["match"], out["proj"], out["over"], out["state"], out["n_matched"], out["explained"], out["unknown"],
             out["free"], out["passed"], out["free_frac"],
