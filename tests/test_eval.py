@@ -53,6 +53,15 @@ def test_ambiguity_labels_come_from_the_scene_geometry():
     rooms = make_scene("meeting_rooms")
     # Looking at the table of the second meeting room, away from its door: identical to the first room's view.
     assert is_ambiguous(rooms, pose_from(5.12 + 2.5, 4.5, 1.4, math.pi / 2, -0.3))
+    corridor = make_scene("corridor")
+    # Looking across at a door (the y = 2 side at x = 9) from the corridor's middle: the view of the door at x = 12
+    # on the other side, half a turn about (10.5, 1), is the same; so is the door at x = 15 one step of 6 m along.
+    S = scene_symmetries(corridor)
+    assert len(S) == 8 + 10
+    view = pose_from(9.0, 0.6, 1.4, math.pi / 2, -0.1)
+    assert is_ambiguous(corridor, view)
+    half_turns = [s for s in S if s[0, 0] < 0]
+    assert is_ambiguous(corridor, view, symmetries=half_turns)
 
 
 @pytest.fixture(scope="module")

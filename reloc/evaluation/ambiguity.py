@@ -1,7 +1,9 @@
 """Which positive queries have no unique answer: views that look the same from another place of the scene.
 
 Three scenes repeat themselves by construction: ``meeting_rooms`` (identical rooms side by side, one room pitch
-apart along x), ``symmetric_room`` (four-fold symmetric about its centre) and ``corridor`` (doors every 6 m). For a
+apart along x), ``symmetric_room`` (four-fold symmetric about its centre) and ``corridor`` (doors every 6 m on
+either side, the two sides 3 m out of step: along it by 6 m, and half a turn about a vertical axis on its centre line
+at x = 4.5 + 3 m, which takes each side's doors to the other's). For a
 query pose ``T`` and each symmetry ``S`` of the scene, the depth image rendered from ``S @ T`` is compared with the
 one from ``T``, both cut at the sensor's range ``max_range_m``; when they agree (within ``tol_m`` on at least
 ``min_fraction`` of the pixels, missing pixels agreeing with missing pixels) no depth-only method can tell the two
@@ -46,20 +48,24 @@ def scene_symmetries(scene) -> list[np.ndarray]:
             T = np.eye(4)
             T[0, 3] = 6.0 * k
             out.append(T)
+        # Doors at x = 3, 9, ..., 27 on the y = 2 side and 6, 12, ..., 24 on the y = 0 side (sim.scenes._corridor):
+        # half a turn about (4.5 + 3 m, 1) maps each side's doors onto the other's (the ends and cabinets differ,
+        # which the renders below tell).
+        out += [_rotation_about_z(4.5 + 3.0 * m, 1.0, math.pi) for m in range(-1, 9)]
         return out
     return []
 
 
 def is_ambiguous(scene, T_world_cams, *, max_range_m: float = 5.0, tol_m: float = 0.02, min_fraction: float = 0.98,
-                 probe=None) -> bool:
+                 probe=None, symmetries=None) -> bool:
     """True when every pose of ``T_world_cams`` ((N, 4, 4) or (4, 4)) has a symmetric twin ``S @ T`` (one ``S`` for
-    all) whose rendered depth image is the same."""
+    all, from ``symmetries`` or else :func:`scene_symmetries`) whose rendered depth image is the same."""
     from sim.cameras import preset
     from sim.render import render
 
     poses = np.asarray(T_world_cams, dtype=np.float64).reshape(-1, 4, 4)
     probe = probe or preset("kinect").scaled(80, 60)
-    for S in scene_symmetries(scene):
+    for S in scene_symmetries(scene) if symmetries is None else symmetries:
         same = True
         for T in poses:
             a, _ = render(scene, probe, T)
