@@ -2,12 +2,13 @@
 
 Three scenes repeat themselves by construction: ``meeting_rooms`` (identical rooms side by side, one room pitch
 apart along x), ``symmetric_room`` (four-fold symmetric about its centre) and ``corridor`` (doors every 6 m on
-either side, the two sides 3 m out of step: along it by 6 m, and half a turn about a vertical axis on its centre line
-at x = 4.5 + 3 m, which takes each side's doors to the other's). For a
-query pose ``T`` and each symmetry ``S`` of the scene, the depth image rendered from ``S @ T`` is compared with the
-one from ``T``, both cut at the sensor's range ``max_range_m``; when they agree (within ``tol_m`` on at least
-``min_fraction`` of the pixels, missing pixels agreeing with missing pixels) no depth-only method can tell the two
-places apart, and the query is labelled ambiguous.
+either side, the two sides 3 m out of step: along it by 6 m, and half a turn about a vertical axis on its centre
+line at x = 1.5, 4.5, 7.5, ... m, which takes each side's doors to the other's). For a query pose ``T`` and each
+symmetry ``S`` of the scene, the depth image rendered from ``S @ T`` is compared with the one from ``T``, both cut
+at the sensor's range ``max_range_m``; when they agree (within ``tol_m`` on at least ``min_fraction`` of the pixels,
+missing pixels agreeing with missing pixels) the two places look alike to any depth-only method, but for the few
+per cent of pixels that may differ, and the query is labelled ambiguous (a matcher that answers it has guessed, or
+read those few pixels; either counts as a false positive).
 The label comes from the scene's geometry alone, never from the matcher under test.
 """
 
@@ -49,8 +50,8 @@ def scene_symmetries(scene) -> list[np.ndarray]:
             T[0, 3] = 6.0 * k
             out.append(T)
         # Doors at x = 3, 9, ..., 27 on the y = 2 side and 6, 12, ..., 24 on the y = 0 side (sim.scenes._corridor):
-        # half a turn about (4.5 + 3 m, 1) maps each side's doors onto the other's (the ends and cabinets differ,
-        # which the renders below tell).
+        # half a turn about (x0, 1) with x0 = 1.5, 4.5, ..., 28.5 maps each side's doors onto the other's (the ends
+        # and the cabinets differ, which the renders below tell).
         out += [_rotation_about_z(4.5 + 3.0 * m, 1.0, math.pi) for m in range(-1, 9)]
         return out
     return []

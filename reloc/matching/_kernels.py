@@ -622,10 +622,9 @@ def verify_transforms(R, t, cand, plane_order, sub_normals, sub_offsets, sub_cen
     every map surface (no map sample in their cell of the spatial hash), the free share of those samples is judged
     too. ``out_free`` (H,) counts such planes. ``out_state`` (H, S) int8 says why each plane is unmatched: 0
     matched (or not judged), 1 unknown (the map has nothing there: no surface facing the same way off its plane, no
-    free space), 2 conflict (map surfaces facing the same way, but
-    more than ``conflict_offset`` off its plane, are there), 3 in known free space, 4 too small to count; with a
-    ``conflict_offset`` above ``max_offset``, 5 near a surface facing the same way, between the two offsets
-    (neither matched nor in conflict, nor unknown to the map);
+    free space), 2 conflict (map surfaces facing the same way, but more than ``conflict_offset`` off its plane, are
+    there), 3 in known free space, 4 too small to count; with a ``conflict_offset`` above ``max_offset``, 5 near a
+    surface facing the same way, between the two offsets (neither matched nor in conflict, nor unknown to the map);
     ``out_unknown`` (H,) is the weight of the unknown planes as a fraction of the total (what the pose might still
     explain with a more complete map); ``out_free_frac`` (H, S) float32 is the fraction of an unmatched counted
     plane's samples in known free space (0 otherwise): a plane the map knows nothing about but whose place the map
