@@ -110,7 +110,7 @@ def test_saving_over_a_suite_removes_its_index_first(prepared, saved, monkeypatc
 def test_a_loaded_suite_is_checked_against_every_parameter_it_was_built_with(prepared, tmp_path):
     """``built_with`` records every extraction (as tuned to the sensor) and fusion parameter, defaults included;
     ``mismatch`` names each spec field and parameter that differs, and a suite that recorded none."""
-    from dataclasses import replace
+    from dataclasses import asdict, replace
 
     from reloc.evaluation.prepared_io import built_with, mismatch
     from reloc.extraction import ExtractionParams
@@ -119,7 +119,7 @@ def test_a_loaded_suite_is_checked_against_every_parameter_it_was_built_with(pre
     spec = prepared.spec  # ground-truth planes: no extraction to record
     params = built_with(spec)
     assert params["extraction"] is None
-    assert params["mapping"] == json.loads(json.dumps(dataclasses_asdict(MappingParams())))
+    assert params["mapping"] == json.loads(json.dumps(asdict(MappingParams())))
     extracted = replace(spec, plane_source="extraction")
     tuned = built_with(extracted)["extraction"]
     assert (tuned["noise_model"], tuned["noise_coeff"], tuned["voxel_size_m"]) == ("kinect", 1.425e-3, 0.25)
@@ -141,9 +141,3 @@ def test_a_loaded_suite_is_checked_against_every_parameter_it_was_built_with(pre
         "extraction.min_points_per_voxel: saved 12, asked 20", "extraction.voxel_size_m: saved 0.25, asked 0.3"]
     assert mismatch(loaded, {}, spec, params) == [
         "no parameters recorded (saved by an older version): prepare it again"]
-
-
-def dataclasses_asdict(obj):
-    from dataclasses import asdict
-
-    return asdict(obj)
