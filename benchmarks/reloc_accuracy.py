@@ -128,8 +128,8 @@ def main() -> int:
                     help="Also save each source's maps and queries under DIR/<source>_<noise>/ (8-15 MB each).")
     ap.add_argument("--prepared", metavar="DIR", type=Path, default=None,
                     help="Load the maps and queries saved by --save-prepared instead of preparing them (seconds "
-                         "instead of minutes): for comparing matchers (--variant). The suite, --set and "
-                         "--mapping-set must be those it was saved with.")
+                         "instead of minutes): for comparing matchers (--variant). The suite and every extraction "
+                         "and fusion parameter (defaults, --set, --mapping-set) must be those it was saved with.")
     args = ap.parse_args()
 
     from reloc._numba import warm_up
