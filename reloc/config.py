@@ -366,6 +366,30 @@ class EvaluationConfig(_Section):
         "samples are away from every map surface, more than max_free_fraction of those in free space contradicts "
         "the pose too (0 = off).",
     )
+    occlusion: bool = Field(
+        True,
+        description="In the decision, a submap plane unknown to the map under a pose but hidden behind a map surface "
+        "from every camera of the submap's window (a look-alike pose puts what was seen through a doorway behind a "
+        "wall) counts against the pose, as a plane in conflict with the map does.",
+    )
+    occlusion_margin_m: float = Field(
+        0.04, gt=0, description="A point is hidden by a map surface it lies more than this behind."
+    )
+    occlusion_erode_m: float = Field(
+        0.3, ge=0,
+        description="...crossed where the map plane has surface at least this far all around (map planes reach a few "
+        "tenths of a metre past their edges: a door-sized opening must stay open).",
+    )
+    occlusion_min_fraction: float = Field(
+        0.5, gt=0, le=1, description="A plane is hidden when at least this fraction of its samples are."
+    )
+    occlusion_max_sensor_sigma_m: float = Field(
+        0.02, ge=0,
+        description="The occlusion test is off for a sensor whose depth noise at 3 m (extraction's noise law) is "
+        "above this: its maps close doorways (far points seen along a wall land on it), and true poses seen through "
+        "them lost to look-alikes (the suite's stereo, 7.3 cm). Kinect (1.3 cm) and ToF (0.9 cm) class sensors keep "
+        "it.",
+    )
     scene_uniqueness: bool = Field(True, description="Require tau_m matched planes (off = VR-NS).")
     min_matched_planes: int = Field(5, ge=3, description="tau_m: matched planes a pose needs (paper: 5).")
     min_direction_support_m2: float = Field(

@@ -22,6 +22,9 @@ Frame-level:
   a level base's mounting, a simulator), the camera's tilt tolerance when it is the camera's y axis (paper, tau_g).
   Matching widens its ground test by it.
 - ``labels`` (H, W) int32 plane index per pixel (-1 for none), only for planes of one depth frame.
+- ``viewpoints`` (V, 3): where the cameras that saw these planes were, in this frame (a submap: its window's
+  cameras), or None when not recorded (a plane set in frame "cam" was seen from its origin). Matching uses them to
+  tell a surface hidden behind a map surface from the cameras' positions under a pose.
 """
 
 from __future__ import annotations
@@ -71,6 +74,7 @@ class PlaneSet:
     gravity: np.ndarray | None = None
     labels: np.ndarray | None = field(default=None, repr=False)
     gravity_tolerance_rad: float = 0.0
+    viewpoints: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         n = np.asarray(self.normals).shape[0] if np.ndim(self.normals) == 2 else -1
@@ -102,6 +106,12 @@ class PlaneSet:
         if isinstance(tol, bool) or not isinstance(tol, (int, float, np.floating)) or not 0 <= tol <= np.pi / 2:
             raise ValueError(f"PlaneSet.gravity_tolerance_rad: expected a number in [0, pi/2], got {tol!r}")
         object.__setattr__(self, "gravity_tolerance_rad", float(tol))
+        if self.viewpoints is not None:
+            v = np.ascontiguousarray(self.viewpoints, dtype=np.float64)
+            if v.ndim != 2 or v.shape[1] != 3 or not np.all(np.isfinite(v)):
+                raise ValueError(f"PlaneSet.viewpoints: expected a finite (V, 3) array of camera positions, got "
+                                 f"shape {v.shape}" + ("" if np.all(np.isfinite(v)) else " with non-finite values"))
+            object.__setattr__(self, "viewpoints", v)
 
     def check_geometry(self, name: str) -> None:
         """Raise ``ValueError`` naming ``name`` unless every plane's geometry and statistics are finite, its normal
@@ -157,7 +167,8 @@ class PlaneSet:
     def transformed(self, T_a_b: np.ndarray, frame: str) -> "PlaneSet":
         """The same planes moved by ``T_a_b`` from this frame (b) into frame ``frame`` (a).
 
-        Normals, offsets, centroids, samples, sufficient statistics, gravity and the (n, d) covariance all move;
+        Normals, offsets, centroids, samples, sufficient statistics, gravity, viewpoints and the (n, d) covariance
+        all move;
         radii, areas and counts do not change. Labels are dropped (they belong to the original image).
         """
         T = np.asarray(T_a_b, dtype=np.float64)
@@ -176,9 +187,10 @@ class PlaneSet:
             + counts[:, None, None] * np.outer(t, t)[None]
         )
         gravity = None if self.gravity is None else R @ self.gravity
+        views = None if self.viewpoints is None else self.viewpoints @ R.T + t
         return replace(
             self, normals=normals, offsets=offsets, centroids=centroids, sums=sums, scatters=scatters,
-            covariances=covs, sample_points=samples, frame=frame, gravity=gravity, labels=None,
+            covariances=covs, sample_points=samples, frame=frame, gravity=gravity, labels=None, viewpoints=views,
         )
 
     def to_arrays(self, prefix: str = "") -> dict[str, np.ndarray]:
@@ -188,6 +200,8 @@ class PlaneSet:
         out[prefix + "sample_ptr"] = self.sample_ptr
         out[prefix + "gravity"] = np.full(3, np.nan) if self.gravity is None else self.gravity
         out[prefix + "gravity_tolerance_rad"] = np.float64(self.gravity_tolerance_rad)
+        if self.viewpoints is not None:
+            out[prefix + "viewpoints"] = self.viewpoints
         return out
 
     @classmethod
@@ -198,8 +212,9 @@ class PlaneSet:
         # Absent from files written before it existed: their gravity was taken as measured.
         tol = float(np.asarray(arrays[prefix + "gravity_tolerance_rad"])) if (
             prefix + "gravity_tolerance_rad") in arrays else 0.0
+        views = np.asarray(arrays[prefix + "viewpoints"]) if (prefix + "viewpoints") in arrays else None
         return cls(
             **kwargs, sample_points=np.asarray(arrays[prefix + "sample_points"]),
             sample_ptr=np.asarray(arrays[prefix + "sample_ptr"]), frame=frame,
-            gravity=None if not np.all(np.isfinite(g)) else g, gravity_tolerance_rad=tol,
+            gravity=None if not np.all(np.isfinite(g)) else g, gravity_tolerance_rad=tol, viewpoints=views,
         )

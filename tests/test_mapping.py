@@ -107,6 +107,9 @@ def test_submap_window_is_in_the_latest_camera_frame():
         best = min(plane_errors(np.r_[n, d], np.r_[np.array(r.normal), -np.dot(r.normal, r.center)]) for r in rects
                    if np.dot(r.normal, n) > 0.9)
         assert best[0] < 0.05 and best[1] < 0.002
+    # The window's cameras, in the latest camera's frame (the origin alone for one frame).
+    np.testing.assert_allclose(world.viewpoints, [T[:3, 3] for T in Ts], atol=1e-12)
+    np.testing.assert_array_equal(single.viewpoints, np.zeros((1, 3)))
     with pytest.raises(ValueError, match="T_odom_cams"):
         build_submap(sets, Ts[:2])
 

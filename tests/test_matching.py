@@ -401,6 +401,57 @@ def test_a_wall_put_across_a_corridor_is_in_free_space():
     assert state == 3 and free_frac > 0.9 and not passed
 
 
+def test_a_plane_behind_a_map_wall_is_hidden_but_not_one_seen_through_a_doorway():
+    """A view from a corridor through a doorway 0.9 m wide at x = 3 m in its y = 0 wall: the side wall of the room
+    beyond (x = 2.3 m, 0.6-1.8 m behind the corridor's wall) is unknown to the map. Where the map's wall has no
+    doorway (a look-alike place), that plane is hidden behind it from the camera (state 6); through the doorway it
+    is not, though its lines of sight cross the wall's plane within 0.25-0.35 m of a jamb; nor from a camera in the
+    room beyond."""
+    from dataclasses import replace
+
+    from reloc.evaluation.synthetic import Rect, room
+
+    corridor = [r for r in room(6.0, 2.0, 2.7) if r.normal[1] < 0.5]  # all but the y = 0 wall
+    solid = [Rect((3.0, 0.0, 1.35), (0, 1, 0), (1, 0, 0), 3.0, 1.35)]
+    doorway = [Rect((1.275, 0.0, 1.35), (0, 1, 0), (1, 0, 0), 1.275, 1.35),
+               Rect((4.725, 0.0, 1.35), (0, 1, 0), (1, 0, 0), 1.275, 1.35)]  # the opening: x from 2.55 to 3.45
+    beyond = Rect((2.3, -1.2, 1.0), (1, 0, 0), (0, 1, 0), 0.6, 0.8)
+    T = look_at((4.0, 1.5, 1.3), (1.0, -0.5, 1.0))
+    states = {}
+    for name, wall, views in (("solid", solid, None), ("doorway", doorway, None),
+                              ("solid, seen from beyond", solid, [(4.0, 1.5, 1.3), (3.5, -1.2, 1.0)])):
+        reloc = Relocalizer(scene_planes(corridor + wall), MatchingParams())
+        sub = view_planes(corridor + wall + [beyond], T)
+        if views is not None:
+            sub = replace(sub, viewpoints=(np.array(views) - T[:3, 3]) @ T[:3, :3])  # in the camera frame
+        used, _, vs_ptr, vs_pts = reloc.prepare(sub)
+        gap = np.linalg.norm(used.centroids @ T[:3, :3].T + T[:3, 3] - np.array(beyond.center), axis=1)
+        j = int(np.argmin(gap))  # the room beyond's wall
+        assert gap[j] < 0.05 and len(used) >= 5
+        cand = np.array([[0, 1, 2, 0, 0, 0]], np.int32)  # distinct submap planes first (map side unused)
+        v = reloc.verify(used, vs_ptr, vs_pts, T[None, :3, :3], T[None, :3, 3], cand, require_triplet=False,
+                         tight=True)
+        assert v.state[0, j] == 1 and v.n_matched[0] == len(used) - 1  # all matched but j, unknown to the map
+        frac = reloc.mark_hidden(used, vs_ptr, vs_pts, T[None, :3, :3], T[None, :3, 3], v.state)
+        states[name] = (int(v.state[0, j]), float(frac[0, j]))
+        others = np.delete(v.state[0], j)
+        assert not np.any(others == 6)
+    assert states["solid"][0] == 6 and states["solid"][1] >= 0.5
+    assert states["doorway"] == (1, 0.0)
+    assert states["solid, seen from beyond"] == (1, 0.0)
+
+
+def test_hidden_planes_count_against_a_pose_as_conflicts_do():
+    from reloc.matching.scoring import explains_enough, in_conflict
+
+    state = np.array([[0, 1, 2, 3, 4, 5, 6]], np.int8)
+    assert in_conflict(state).tolist() == [[False, False, True, False, False, False, True]]
+    p = MatchingParams()
+    hidden = np.array([[0, 0, 0, 6]], np.int8)
+    assert explains_enough(np.array([0.75]), np.array([0.2]), hidden, p).tolist() == [False]
+    assert explains_enough(np.array([0.75]), np.array([0.2]), np.where(hidden == 6, 1, 0), p).tolist() == [True]
+
+
 def test_decision_offsets_follow_the_sensor_noise():
     from reloc.config import Config
     from reloc.matching.params import sensor_sigma_m
@@ -420,6 +471,15 @@ def test_decision_offsets_follow_the_sensor_noise():
     assert stereo.decision_max_offset_m == pytest.approx(2.3 * 2.4e-3 * 9)
     assert stereo.decision_conflict_m == pytest.approx(3.85 * 2.4e-3 * 9)
     assert stereo.final_max_offset_m == base.final_max_offset_m  # acceptance itself is not loosened
+    # The occlusion test stays on up to 2 cm of noise at 3 m (Kinect 1.3 cm, ToF 0.9 cm), off beyond (this stereo
+    # camera's maps close doorways); a config that turns it off keeps it off.
+    assert kinect.occlusion and MatchingParams.from_config(
+        Config.model_validate({"extraction": {"noise_model": "tof", "noise_coeff": 3e-3}})).occlusion
+    assert not stereo.occlusion
+    assert not MatchingParams.from_config(Config.model_validate({"evaluation": {"occlusion": False}})).occlusion
+    wide = Config.model_validate({"extraction": {"noise_model": "stereo", "noise_coeff": 2.4e-3},
+                                  "evaluation": {"occlusion_max_sensor_sigma_m": 0.03}})
+    assert MatchingParams.from_config(wide).occlusion
 
 
 def test_a_pose_may_win_with_the_rest_of_its_submap_unknown_to_the_map_but_not_in_conflict():

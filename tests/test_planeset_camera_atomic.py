@@ -85,6 +85,17 @@ def test_planeset_subset_and_arrays_round_trip():
     for bad in (-0.1, 2.0, float("nan"), "0.1"):
         with pytest.raises(ValueError, match=r"PlaneSet.gravity_tolerance_rad: expected a number in \[0, pi/2\]"):
             replace(ps, gravity_tolerance_rad=bad)
+    # The cameras' positions go with the planes: kept by subsets, moved by transforms, saved only when known.
+    seen = replace(ps, viewpoints=[[0.0, 0.0, 0.0], [0.5, 0.0, -1.0]])
+    T = tf.exp_se3(np.r_[0.1, 0.2, 0.3, 0.1, -0.2, 0.3])
+    np.testing.assert_allclose(seen.transformed(T, "map").viewpoints, tf.apply(T, seen.viewpoints), atol=1e-12)
+    np.testing.assert_array_equal(seen.subset([1]).viewpoints, seen.viewpoints)
+    np.testing.assert_array_equal(PlaneSet.from_arrays(seen.to_arrays("m_"), "m_").viewpoints, seen.viewpoints)
+    assert "m_viewpoints" not in ps.to_arrays("m_")
+    assert PlaneSet.from_arrays(ps.to_arrays("m_"), "m_").viewpoints is None
+    for bad in ([1.0, 2.0, 3.0], [[0.0, 0.0, float("inf")]], np.zeros((2, 2))):
+        with pytest.raises(ValueError, match=r"PlaneSet.viewpoints: expected a finite \(V, 3\) array"):
+            replace(ps, viewpoints=bad)
 
 
 def test_planeset_shape_errors():

@@ -31,7 +31,7 @@ __all__ = ["PREPARED_FORMAT", "PREPARED_FORMAT_VERSION", "PreparedSuiteError", "
            "mismatch", "save_prepared"]
 
 PREPARED_FORMAT = "voxelplane-reloc prepared suite"
-PREPARED_FORMAT_VERSION = 1
+PREPARED_FORMAT_VERSION = 2  # 2: submaps carry their window's camera positions (viewpoints)
 
 
 class PreparedSuiteError(ValueError):

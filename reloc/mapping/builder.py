@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import math
 from collections import deque
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Callable, Iterable
 
 import numpy as np
@@ -393,14 +393,15 @@ def build_submap(
 
     ``plane_sets``: each frame's planes in its own camera frame; ``T_odom_cams``: their poses in any common frame
     (odometry; only relative poses matter), required when more than one frame is given. One frame returns its
-    planes unchanged (labels dropped). Older frames whose odometry disagrees with the newest frame's view are left
-    out (:func:`odometry_consistent_frames`); with ``stats`` (a dict) their number is added to
+    planes unchanged (labels dropped). The submap's ``viewpoints`` are the positions of the window's cameras in the
+    latest camera's frame (the origin alone for one frame). Older frames whose odometry disagrees with the newest
+    frame's view are left out (:func:`odometry_consistent_frames`); with ``stats`` (a dict) their number is added to
     ``stats["frames_left_out"]``.
     """
     if not plane_sets:
         raise ValueError("plane_sets: expected at least one plane set, got none")
     if len(plane_sets) == 1:
-        return plane_sets[0].subset(np.arange(len(plane_sets[0])))
+        return replace(plane_sets[0].subset(np.arange(len(plane_sets[0]))), viewpoints=np.zeros((1, 3)))
     if T_odom_cams is None or len(T_odom_cams) != len(plane_sets):
         raise ValueError(f"T_odom_cams: expected {len(plane_sets)} poses (one per plane set), got "
                          f"{None if T_odom_cams is None else len(T_odom_cams)}")
@@ -412,11 +413,13 @@ def build_submap(
         plane_sets = [ps for ps, ok in zip(plane_sets, keep) if ok]
         T_odom_cams = [T for T, ok in zip(T_odom_cams, keep) if ok]
         if len(plane_sets) == 1:
-            return plane_sets[0].subset(np.arange(len(plane_sets[0])))
+            return replace(plane_sets[0].subset(np.arange(len(plane_sets[0]))), viewpoints=np.zeros((1, 3)))
     T_last_odom = invert(check_transform(T_odom_cams[-1], "T_odom_cams[-1]"))
     acc = PlaneAccumulator(params.fusion, frame="cam")
+    views = np.empty((len(plane_sets), 3))
     for k, (ps, T) in enumerate(zip(plane_sets, T_odom_cams)):
         T_last_k = T_last_odom @ check_transform(T, f"T_odom_cams[{k}]")
+        views[k] = T_last_k[:3, 3]
         acc.add(ps.transformed(T_last_k, "cam"))
     acc.merge_pass()
     # Planes seen in one frame only are dropped from windows of 3+ frames: mostly facets of clutter.
@@ -428,7 +431,7 @@ def build_submap(
         gravity = np.mean(gs, axis=0) if gs else None
         tolerance = max((ps.gravity_tolerance_rad for ps in plane_sets if ps.gravity is not None), default=0.0)
     planes, _ = acc.to_planeset(gravity=gravity, min_observations=min_obs, gravity_tolerance_rad=tolerance)
-    return planes
+    return replace(planes, viewpoints=views)
 
 
 class SubmapBuilder:

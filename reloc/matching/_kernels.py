@@ -904,6 +904,169 @@ def verify_transforms(R, t, cand, plane_order, sub_normals, sub_offsets, sub_cen
 
 
 # ---------------------------------------------------------------------------------------------------------------------
+# Planes hidden behind map surfaces
+
+HIDDEN_SHRINK = 0.7  # samples are pulled this far toward their plane's centre before their lines of sight are cast
+_HIDDEN_PARALLEL = 0.866  # occluders within 30 degrees of the plane's own orientation are left to the conflict test
+
+
+@njit
+def surface_key(a, b, cell):
+    """int64 key of the ``cell`` square holding in-plane coordinates ``(a, b)``."""
+    ia = int(math.floor(a / cell)) + _KEY_OFFSET
+    ib = int(math.floor(b / cell)) + _KEY_OFFSET
+    return (np.int64(ia & _KEY_MASK) << 21) | np.int64(ib & _KEY_MASK)
+
+
+@njit
+def surface_cells(points, owner, bases, cell):
+    """(9 N,) keys of the ``cell`` squares around each point's own (and its eight neighbours) in the plane
+    ``owner[k]`` (in-plane basis ``bases[owner[k]]``), point by point: the dilated surface of each plane."""
+    n = points.shape[0]
+    out = np.empty(9 * n, np.int64)
+    m = 0
+    for k in range(n):
+        i = owner[k]
+        a = bases[i, 0, 0] * points[k, 0] + bases[i, 0, 1] * points[k, 1] + bases[i, 0, 2] * points[k, 2]
+        b = bases[i, 1, 0] * points[k, 0] + bases[i, 1, 1] * points[k, 1] + bases[i, 1, 2] * points[k, 2]
+        for da in range(-1, 2):
+            for db in range(-1, 2):
+                out[m] = surface_key(a + da * cell, b + db * cell, cell)
+                m += 1
+    return out
+
+
+@njit
+def _on_surface(i, x, y, z, bases, surf_ptr, surf_keys, cell):
+    a = bases[i, 0, 0] * x + bases[i, 0, 1] * y + bases[i, 0, 2] * z
+    b = bases[i, 1, 0] * x + bases[i, 1, 1] * y + bases[i, 1, 2] * z
+    key = surface_key(a, b, cell)
+    lo = surf_ptr[i]
+    hi = surf_ptr[i + 1]
+    pos = _lower_bound(surf_keys, lo, hi, key)
+    return pos < hi and surf_keys[pos] == key
+
+
+@njit
+def _hidden_from(cx, cy, cz, px, py, pz, nx, ny, nz, map_normals, map_offsets, map_centroids, map_radii, bases,
+                 surf_ptr, surf_keys, cell, margin, erode):
+    """Whether the line of sight from the camera ``c`` to the point ``p`` (of a plane with normal ``n``) crosses a
+    map surface first: a map plane with ``c`` in front of it and ``p`` more than ``margin`` behind it, crossed
+    where that plane has surface all around (the crossing and the four points ``erode`` from it along the plane)."""
+    for i in range(map_normals.shape[0]):
+        mx = map_normals[i, 0]
+        my = map_normals[i, 1]
+        mz = map_normals[i, 2]
+        if mx * nx + my * ny + mz * nz >= _HIDDEN_PARALLEL:
+            continue
+        sc = mx * cx + my * cy + mz * cz + map_offsets[i]
+        if sc <= 0.05:
+            continue
+        sp = mx * px + my * py + mz * pz + map_offsets[i]
+        if sp >= -margin:
+            continue
+        f = sc / (sc - sp)
+        x = cx + (px - cx) * f
+        y = cy + (py - cy) * f
+        z = cz + (pz - cz) * f
+        dx = x - map_centroids[i, 0]
+        dy = y - map_centroids[i, 1]
+        dz = z - map_centroids[i, 2]
+        if dx * dx + dy * dy + dz * dz > map_radii[i] * map_radii[i]:
+            continue
+        if not _on_surface(i, x, y, z, bases, surf_ptr, surf_keys, cell):
+            continue
+        ok = True
+        for k in range(2):
+            ex = erode * bases[i, k, 0]
+            ey = erode * bases[i, k, 1]
+            ez = erode * bases[i, k, 2]
+            if not (_on_surface(i, x + ex, y + ey, z + ez, bases, surf_ptr, surf_keys, cell)
+                    and _on_surface(i, x - ex, y - ey, z - ez, bases, surf_ptr, surf_keys, cell)):
+                ok = False
+                break
+        if ok:
+            return True
+    return False
+
+
+@njit
+def mark_hidden(R, t, state, sub_normals, vs_ptr, vs_points, views, map_normals, map_offsets, map_centroids,
+                map_radii, bases, surf_ptr, surf_keys, cell, margin, erode, min_fraction, out_frac):
+    """Planes unknown to the map (``state`` 1) under each pose ``(R[h], t[h])`` that the map says the cameras could
+    not have seen: at least ``min_fraction`` of their verification samples, pulled ``HIDDEN_SHRINK`` of the way
+    toward their centre (off the borders that lines of sight graze), are hidden behind a map surface from every
+    camera position of ``views`` (the submap's viewpoints, its frame). Their state becomes 6 in place; ``out_frac``
+    (H, S) float32 gets the hidden fraction of each plane looked at (0 elsewhere). Returns the planes marked.
+
+    A look-alike pose puts what the cameras saw through a doorway, or the side of a door jamb, behind a wall of the
+    map, where the map knows nothing (it never saw behind the wall) but where nothing could have been seen either.
+    A map surface is known up to ~0.3 m beyond its edges (noise, flying pixels, map samples of 0.1 m cells), so it
+    hides a point only where it has surface ``erode`` all around the crossing; a door-sized opening stays open.
+    """
+    H = R.shape[0]
+    S = sub_normals.shape[0]
+    V = views.shape[0]
+    vx = np.empty(V)
+    vy = np.empty(V)
+    vz = np.empty(V)
+    marked = 0
+    for h in range(H):
+        for v in range(V):
+            c = views[v]
+            vx[v] = R[h, 0, 0] * c[0] + R[h, 0, 1] * c[1] + R[h, 0, 2] * c[2] + t[h, 0]
+            vy[v] = R[h, 1, 0] * c[0] + R[h, 1, 1] * c[1] + R[h, 1, 2] * c[2] + t[h, 1]
+            vz[v] = R[h, 2, 0] * c[0] + R[h, 2, 1] * c[1] + R[h, 2, 2] * c[2] + t[h, 2]
+        for j in range(S):
+            out_frac[h, j] = 0.0
+            if state[h, j] != 1 or V == 0:
+                continue
+            s0 = vs_ptr[j]
+            s1 = vs_ptr[j + 1]
+            m = s1 - s0
+            if m == 0:
+                continue
+            nx = R[h, 0, 0] * sub_normals[j, 0] + R[h, 0, 1] * sub_normals[j, 1] + R[h, 0, 2] * sub_normals[j, 2]
+            ny = R[h, 1, 0] * sub_normals[j, 0] + R[h, 1, 1] * sub_normals[j, 1] + R[h, 1, 2] * sub_normals[j, 2]
+            nz = R[h, 2, 0] * sub_normals[j, 0] + R[h, 2, 1] * sub_normals[j, 1] + R[h, 2, 2] * sub_normals[j, 2]
+            mx = 0.0
+            my = 0.0
+            mz = 0.0
+            for s in range(s0, s1):
+                mx += vs_points[s, 0]
+                my += vs_points[s, 1]
+                mz += vs_points[s, 2]
+            mx /= m
+            my /= m
+            mz /= m
+            need = min_fraction * m
+            hidden = 0
+            for s in range(s0, s1):
+                if hidden + (s1 - s) < need:
+                    break
+                qx = mx + HIDDEN_SHRINK * (vs_points[s, 0] - mx)
+                qy = my + HIDDEN_SHRINK * (vs_points[s, 1] - my)
+                qz = mz + HIDDEN_SHRINK * (vs_points[s, 2] - mz)
+                px = R[h, 0, 0] * qx + R[h, 0, 1] * qy + R[h, 0, 2] * qz + t[h, 0]
+                py = R[h, 1, 0] * qx + R[h, 1, 1] * qy + R[h, 1, 2] * qz + t[h, 1]
+                pz = R[h, 2, 0] * qx + R[h, 2, 1] * qy + R[h, 2, 2] * qz + t[h, 2]
+                every = True
+                for v in range(V):
+                    if not _hidden_from(vx[v], vy[v], vz[v], px, py, pz, nx, ny, nz, map_normals, map_offsets,
+                                        map_centroids, map_radii, bases, surf_ptr, surf_keys, cell, margin, erode):
+                        every = False
+                        break
+                if every:
+                    hidden += 1
+            frac = hidden / m
+            out_frac[h, j] = frac
+            if hidden >= need:
+                state[h, j] = 6
+                marked += 1
+    return marked
+
+
+# ---------------------------------------------------------------------------------------------------------------------
 # Kernel density over SE(3) and modes
 
 
@@ -1112,6 +1275,14 @@ def _warmup() -> None:
                           normals, offsets, areas, 0.5, uk, hptr, di, 0.25, 0.99, 0.1, 0.05, True, 0.5, use_overlap,
                           0.3, 3, 0.5,
                           0.3, uk, 0.25, 0.5, 0.25, True, 0.1, om, op, oo, ost, on, oe, ou, of, ok, off)
+    bases = np.zeros((3, 2, 3))
+    bases[:, 0] = normals[[1, 2, 0]]
+    bases[:, 1] = normals[[2, 0, 1]]
+    skeys = np.unique(surface_cells(pts, np.zeros(3, np.int64), bases, 0.1))[:1]
+    sptr3 = np.array([0, 1, 1, 1], np.int64)
+    hid = np.ones((1, S), np.int8)
+    mark_hidden(Rs, ts, hid, normals, vs_ptr, pts, np.zeros((1, 3)), normals, offsets, centroids, radii, bases,
+                sptr3, skeys, 0.1, 0.04, 0.3, 0.5, np.empty((1, S), np.float32))
     dens = np.empty(1)
     kde_density(Rs, ts, np.ones(1), np.ones(6), dens)
     grp = np.empty(1, np.int32)

@@ -10,6 +10,9 @@
   table tops: facing +1) or of down (ceilings: facing -1); the paper's ground constraint, extended to ceilings.
 - **Spatial hash** of the map planes' samples on a grid of ``extent_cell_m`` dilated by one cell: which map planes
   have samples near a point, in one lookup (verification, Eq. 10-11).
+- **Surface cells**: per map plane, the squares of ``SURFACE_CELL_M`` in its own plane (basis
+  :func:`reloc.mapping.fusion.plane_basis`) near its samples, dilated by one square: where the plane is a surface
+  that hides what lies behind it (:func:`reloc.matching._kernels.mark_hidden`).
 """
 
 from __future__ import annotations
@@ -24,7 +27,9 @@ from reloc.matching import _kernels as K
 from reloc.matching.params import MatchingParams
 from reloc.planeset import PlaneSet
 
-__all__ = ["MapIndex", "build_index", "horizontal_facing", "with_dense_extents"]
+__all__ = ["MapIndex", "SURFACE_CELL_M", "build_index", "horizontal_facing", "with_dense_extents"]
+
+SURFACE_CELL_M = 0.1  # the map samples' own spacing (``MappingConfig.map_sample_spacing_m``)
 
 
 def horizontal_facing(planes: PlaneSet, tolerance_rad: float) -> np.ndarray:
@@ -70,6 +75,9 @@ class MapIndex:
     free_keys: np.ndarray = None  # (F,) sorted int64 voxel keys of the map's known free space (may be empty)
     free_voxel_m: float = 1.0
     dense_ext: np.ndarray | None = None  # (N, N, 2) every pair's extents: only for the brute-force baseline
+    bases: np.ndarray | None = None  # (N, 2, 3) in-plane unit vectors of each plane (u, v)
+    surf_ptr: np.ndarray | None = None  # (N + 1,) int64: plane i's surface cells are surf_keys[surf_ptr[i]:...]
+    surf_keys: np.ndarray | None = None  # sorted int64 keys (``_kernels.surface_key``) per plane
 
     def __len__(self) -> int:
         return int(self.normals.shape[0])
@@ -97,6 +105,24 @@ def _spatial_hash(planes: PlaneSet, cell_m: float) -> tuple[np.ndarray, np.ndarr
     keys_u, starts = np.unique(dk, return_index=True)
     ptr = np.append(starts, dk.shape[0]).astype(np.int64)
     return keys_u.astype(np.int64), ptr, np.ascontiguousarray(di)
+
+
+def _surface_cells(planes: PlaneSet, cell_m: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Each plane's in-plane basis (N, 2, 3) and the ``cell_m`` squares of its plane within one square of a sample
+    (CSR: ``ptr`` (N + 1,), ``keys`` sorted per plane)."""
+    from reloc.mapping.fusion import plane_basis
+
+    N = len(planes)
+    bases = np.zeros((N, 2, 3))
+    for i in range(N):
+        bases[i] = plane_basis(planes.normals[i])
+    owner = np.repeat(np.arange(N, dtype=np.int64), np.diff(planes.sample_ptr))
+    keys = K.surface_cells(np.ascontiguousarray(planes.sample_points, dtype=np.float64), owner, bases, cell_m)
+    keys, ids = _unique_pairs(keys, np.repeat(owner, 9).astype(np.int32))
+    order = np.argsort(ids, kind="stable")  # by plane, keys sorted within each
+    keys, ids = np.ascontiguousarray(keys[order]), ids[order]
+    ptr = np.searchsorted(ids, np.arange(N + 1)).astype(np.int64)
+    return bases, ptr, keys
 
 
 def _unique_pairs(keys: np.ndarray, ids: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -149,6 +175,7 @@ def build_index(planes: PlaneSet, params: MatchingParams, *, free_keys: np.ndarr
     adj_ext = np.ascontiguousarray(ext[row_order])
     pair_ext = np.ascontiguousarray(ext[order])
     keys, ptr, ids = _spatial_hash(planes, params.extent_cell_m)
+    bases, surf_ptr, surf_keys = _surface_cells(planes, SURFACE_CELL_M)
     return MapIndex(
         normals=normals,
         offsets=np.ascontiguousarray(planes.offsets),
@@ -176,6 +203,9 @@ def build_index(planes: PlaneSet, params: MatchingParams, *, free_keys: np.ndarr
         build_ms=(time.perf_counter() - t0) * 1e3,
         free_keys=np.ascontiguousarray(free_keys if free_keys is not None else np.zeros(0), dtype=np.int64),
         free_voxel_m=float(free_voxel_m) if free_voxel_m > 0 else 1.0,
+        bases=bases,
+        surf_ptr=surf_ptr,
+        surf_keys=surf_keys,
     )
 
 

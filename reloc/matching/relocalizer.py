@@ -23,7 +23,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from reloc.matching import _kernels as K
-from reloc.matching.index import MapIndex, build_index, horizontal_facing, with_dense_extents
+from reloc.matching.index import SURFACE_CELL_M, MapIndex, build_index, horizontal_facing, with_dense_extents
 from reloc.matching.params import MatchingParams
 from reloc.matching.scoring import Decision, decide, explains_enough, ratio
 from reloc.matching.selection import (
@@ -108,9 +108,11 @@ class Verification:
     Per (hypothesis, submap plane): ``match`` map plane or -1, ``proj`` and ``over`` (Eq. 10-11 ratios), ``state``
     (0 matched, 1 unknown to the map, 2 conflicting with other map surfaces, 3 in known free space, 4 too small to
     count, 5 near a map surface but neither matched nor in conflict: only with a conflict offset above the match
-    offset, as in the decision over refined poses), ``free_frac`` (the fraction of an unmatched plane's samples in
-    the map's known free space). Per hypothesis: ``n_matched`` distinct map planes, ``explained`` and ``unknown``
-    fractions, ``free`` planes in free space, ``passed``. ``evaluated``: (hypothesis, plane) pairs looked at.
+    offset, as in the decision over refined poses; 6 hidden behind a map surface from the submap's cameras, set by
+    :meth:`Relocalizer.mark_hidden` in the decision over refined poses), ``free_frac`` (the fraction of an unmatched
+    plane's samples in the map's known free space). Per hypothesis: ``n_matched`` distinct map planes, ``explained``
+    and ``unknown`` fractions, ``free`` planes in free space, ``passed``. ``evaluated``: (hypothesis, plane) pairs
+    looked at.
     """
 
     match: np.ndarray
@@ -266,6 +268,21 @@ class Relocalizer:
         )
         return Verification(**out, evaluated=int(evaluated))
 
+    def mark_hidden(self, used: PlaneSet, vs_ptr, vs_pts, R, t, state: np.ndarray) -> np.ndarray:
+        """Mark the planes of ``used`` unknown to the map under ``(R, t)`` (``state`` 1, changed in place to 6) that
+        the map says the submap's cameras could not have seen (:func:`reloc.matching._kernels.mark_hidden`; the
+        cameras are ``used.viewpoints``, or the origin of the latest camera's frame). Returns the (H, S) hidden
+        fractions."""
+        p = self.params
+        ix = self.index
+        views = used.viewpoints if used.viewpoints is not None else np.zeros((1, 3))
+        frac = np.zeros(state.shape, np.float32)
+        K.mark_hidden(np.ascontiguousarray(R), np.ascontiguousarray(t), state, used.normals, vs_ptr, vs_pts,
+                      np.ascontiguousarray(views), ix.normals, ix.offsets, ix.centroids, ix.radii, ix.bases,
+                      ix.surf_ptr, ix.surf_keys, SURFACE_CELL_M, p.occlusion_margin_m, p.occlusion_erode_m,
+                      p.occlusion_min_fraction, frac)
+        return frac
+
     def refine(self, used: PlaneSet, match_row: np.ndarray, proj_row: np.ndarray) -> np.ndarray | None:
         """Least-squares ``T_map_sub`` over the matched pairs of one hypothesis (weights: area x inlier ratio).
 
@@ -380,6 +397,8 @@ class Relocalizer:
         sharp = self.verify(used, vs_ptr, vs_pts, R, t, cand, require_triplet=False, tight=True,
                             max_offset_m=p.decision_max_offset_m)
         v = replace(sharp, n_matched=v.n_matched, explained=v.explained, unknown=v.unknown, passed=v.passed)
+        if p.occlusion:
+            self.mark_hidden(used, vs_ptr, vs_pts, R, t, v.state)
         out = _Hypotheses(len(used))
         out.add(R, t, cand, v)
         out.refined = refined[v.passed]  # whose pose is a least-squares pose (not the raw triplet's)

@@ -22,7 +22,7 @@ import numpy as np
 from reloc.matching import _kernels as K
 from reloc.matching.params import MatchingParams
 
-__all__ = ["Decision", "frequency_weights", "pose_density", "decide", "explains_enough"]
+__all__ = ["Decision", "frequency_weights", "pose_density", "decide", "explains_enough", "in_conflict"]
 
 
 @dataclass(frozen=True)
@@ -43,20 +43,27 @@ def _distinct_from(R: np.ndarray, t: np.ndarray, a: int, params: MatchingParams)
     return (dt > params.distinct_translation_m) | (ang > params.distinct_rotation_rad)
 
 
+def in_conflict(state: np.ndarray) -> np.ndarray:
+    """Where a plane's verification ``state`` is evidence against its pose: in conflict with map surfaces facing
+    the same way (2), or hidden behind a map surface from the submap's cameras (6)."""
+    state = np.asarray(state)
+    return (state == 2) | (state == 6)
+
+
 def explains_enough(explained, unknown, state, params: MatchingParams):
     """Whether each pose explains enough of the submap to be accepted (bool, shape of ``explained``).
 
     It explains ``min_explained_fraction``; or, with ``min_explained_known_fraction`` > 0, it explains at least that
-    and its unexplained planes land only where the map knows nothing (no plane in conflict with a map surface:
-    ``state`` never 2) and make up the rest (``explained + unknown >= min_explained_fraction``): a place the
-    mapping run saw in part is not held against the true pose, while its rivals get the same credit
-    (optimistic rivals) and the density margin still decides.
+    and its unexplained planes land only where the map knows nothing (no plane in conflict with a map surface or
+    hidden behind one: :func:`in_conflict` nowhere) and make up the rest (``explained + unknown >=
+    min_explained_fraction``): a place the mapping run saw in part is not held against the true pose, while its
+    rivals get the same credit (optimistic rivals) and the density margin still decides.
     """
     explained = np.asarray(explained)
     ok = explained >= params.min_explained_fraction
     if params.min_explained_known_fraction > 0 and unknown is not None and state is not None:
         st = np.asarray(state)
-        clean = ~np.any(st == 2, axis=-1)
+        clean = ~np.any(in_conflict(st), axis=-1)
         ok |= (clean & (explained >= params.min_explained_known_fraction)
                & (explained + np.asarray(unknown) >= params.min_explained_fraction))
     return ok
@@ -71,10 +78,10 @@ def frequency_weights(
     ``R`` (H, 3, 3), ``t`` (H, 3), ``match`` (H, S) map plane per submap plane (-1 none), ``overlap`` (H, S),
     ``quality`` (H,) the order in which hypotheses lead the grouping into modes (best first). With ``state`` (H, S)
     (see :class:`reloc.matching.relocalizer.Verification`), a plane that conflicts with the map under a hypothesis
-    (state 2: a map surface facing the same way is there, but the plane does not line up with it) counts against
-    it with the weight it would have had if matched: evidence against a pose, not merely missing evidence. With
-    ``areas`` (S,), a plane's weight also grows with its area up to ``evidence_area_m2`` (a 0.2 m^2 facet is
-    weaker evidence than a wall, and is more often clutter).
+    (state 2: a map surface facing the same way is there, but the plane does not line up with it; state 6: a map
+    surface hides it from the submap's cameras) counts against it with the weight it would have had if matched:
+    evidence against a pose, not merely missing evidence. With ``areas`` (S,), a plane's weight also grows with its
+    area up to ``evidence_area_m2`` (a 0.2 m^2 facet is weaker evidence than a wall, and is more often clutter).
     Returns ``(w (H,), group (H,) int32, leaders (G,) int32, plane_w (S,))``: the leader of a mode is its best
     hypothesis; ``plane_w[j]`` is the weight a match of submap plane j carries (``1 / f_j``, 1 if never matched).
     """
@@ -94,7 +101,7 @@ def frequency_weights(
     w = np.sum(np.where(matched, overlap, 0.0) * inv[None, :], axis=1)
     plane_w = np.where(freq > 0, inv, reliability)
     if state is not None:
-        w = np.maximum(w - np.sum(np.where(state == 2, plane_w[None, :], 0.0), axis=1), 0.0)
+        w = np.maximum(w - np.sum(np.where(in_conflict(state), plane_w[None, :], 0.0), axis=1), 0.0)
     return w, group, leaders, plane_w
 
 
@@ -169,7 +176,7 @@ def decide(
         # still count against it (a pose that contradicts the map more than it matches gains nothing from
         # planes the map does not know).
         gain = np.sum(np.where(match >= 0, overlap, 0.0) * plane_w[None, :], axis=1)
-        against = np.sum(np.where(state == 2, plane_w[None, :], 0.0), axis=1)
+        against = np.sum(np.where(in_conflict(state), plane_w[None, :], 0.0), axis=1)
         w_opt = np.maximum(gain - against + params.rival_unknown_weight * np.sum(credit, axis=1), 0.0)
         mode_opt = np.bincount(group, weights=w_opt, minlength=n_modes) / np.maximum(size, 1)
         # On the scale of the score (normalized by the poses' actual total weight); when conflicts leave no pose
