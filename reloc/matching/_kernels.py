@@ -997,7 +997,8 @@ def mark_hidden(R, t, state, sub_normals, vs_ptr, vs_points, views, map_normals,
     not have seen: at least ``min_fraction`` of their verification samples, pulled ``HIDDEN_SHRINK`` of the way
     toward their centre (off the borders that lines of sight graze), are hidden behind a map surface from every
     camera position of ``views`` (the submap's viewpoints, its frame). Their state becomes 6 in place; ``out_frac``
-    (H, S) float32 gets the hidden fraction of each plane looked at (0 elsewhere). Returns the planes marked.
+    (H, S) float32 gets the hidden fraction of each plane looked at (0 elsewhere; for a plane not marked, counted
+    only until the samples left could no longer make ``min_fraction``). Returns the planes marked.
 
     A look-alike pose puts what the cameras saw through a doorway, or the side of a door jamb, behind a wall of the
     map, where the map knows nothing (it never saw behind the wall) but where nothing could have been seen either.
