@@ -283,6 +283,11 @@ class MatchingConfig(_Section):
         description="Where a submap plane lies relative to another of its triplet (signed distances of its samples "
         "to the other plane) must lie within the map's extents for the pair, give or take this.",
     )
+    extent_trim_fraction: float = Field(
+        0.01, ge=0, lt=0.5,
+        description="...leaving out this fraction of a submap plane's samples at either end of each range (a few "
+        "stray samples, such as a wall's corner points on the floor, would otherwise stretch it; 0 = every sample).",
+    )
     min_area_ratio: float = Field(
         0.5, gt=0, le=1, description="Map plane area must be at least this times the submap plane area."
     )

@@ -366,6 +366,53 @@ def dense_extents(normals, offsets, ptr, points):
 
 
 @njit
+def _keep_smallest(buf, n, cap, v):
+    """Insert ``v`` into the ascending ``buf[:n]`` that keeps the ``cap`` smallest values seen; returns the new n."""
+    if n == cap:
+        if v >= buf[n - 1]:
+            return n
+        n -= 1
+    i = n
+    while i > 0 and buf[i - 1] > v:
+        buf[i] = buf[i - 1]
+        i -= 1
+    buf[i] = v
+    return n + 1
+
+
+@njit
+def trimmed_extents(normals, offsets, ptr, points, trim):
+    """(N, N, 2) as :func:`dense_extents`, but each range leaves out the ``floor(trim * n)`` most extreme of plane
+    ``a``'s ``n`` samples on either side: a few stray samples (a wall's corner points on the floor) do not stretch
+    what a submap saw of a plane beyond what the map holds of it."""
+    n = normals.shape[0]
+    out = np.empty((n, n, 2))
+    k_max = 0
+    for a in range(n):
+        k_max = max(k_max, int(trim * (ptr[a + 1] - ptr[a])))
+    low = np.empty(k_max + 1)
+    high = np.empty(k_max + 1)  # the largest, negated: ascending like ``low``
+    for a in range(n):
+        k = int(trim * (ptr[a + 1] - ptr[a]))
+        for b in range(n):
+            if k == 0:
+                lo, hi = signed_range(normals, offsets, ptr, points, a, b)
+                out[a, b, 0] = lo
+                out[a, b, 1] = hi
+                continue
+            nx, ny, nz, d = normals[b, 0], normals[b, 1], normals[b, 2], offsets[b]
+            n_low = 0
+            n_high = 0
+            for s in range(ptr[a], ptr[a + 1]):
+                v = nx * points[s, 0] + ny * points[s, 1] + nz * points[s, 2] + d
+                n_low = _keep_smallest(low, n_low, k + 1, v)
+                n_high = _keep_smallest(high, n_high, k + 1, -v)
+            out[a, b, 0] = low[k]
+            out[a, b, 1] = -high[k]
+    return out
+
+
+@njit
 def _inside(sub_lo, sub_hi, map_lo, map_hi, tol):
     """The submap interval lies within the map interval, give or take ``tol``."""
     return sub_lo >= map_lo - tol and sub_hi <= map_hi + tol
@@ -1243,6 +1290,7 @@ def _warmup() -> None:
     sptr = np.arange(4, dtype=np.int64)
     pext = pair_extents(first, second, normals, offsets, sptr, centroids)
     dext = dense_extents(normals, offsets, sptr, centroids)
+    trimmed_extents(normals, offsets, np.array([0, 3, 3, 3], np.int64), centroids, 0.5)
     join_candidates(trip, face0, gaps, dext, normals, areas, normals, centroids, radii, areas, facing, first, second,
                     ang, pext, adj_ptr, adj_ids, adj_ang, pext, 0.1, True, True, True, 0.5, 0.2, True, 0.3, out)
     brute_force_candidates(trip, face0, gaps, dext, normals, areas, normals, centroids, radii, areas, facing, dext, 0.1,

@@ -30,6 +30,7 @@ class MatchingParams:
     max_sphere_gap_m: float = 3.0
     gap_tolerance_m: float = 0.2
     extent_tolerance_m: float = 0.3
+    extent_trim_fraction: float = 0.01
     min_area_ratio: float = 0.5
     min_triple_product: float = 0.2
     max_condition_number: float = 50.0
@@ -118,6 +119,8 @@ class MatchingParams:
         for name in ("max_free_fraction", "free_far_min_fraction", "occlusion_min_fraction"):
             if getattr(self, name) > 1:
                 problems.append(f"{name}: expected a fraction in [0, 1], got {getattr(self, name)}")
+        if self.extent_trim_fraction >= 0.5:
+            problems.append(f"extent_trim_fraction: expected a fraction below 0.5, got {self.extent_trim_fraction}")
         if self.min_ambiguity_ratio < 1:
             problems.append(f"min_ambiguity_ratio: expected >= 1, got {self.min_ambiguity_ratio}")
         if self.max_condition_number <= 1:
@@ -150,6 +153,7 @@ class MatchingParams:
             max_sphere_gap_m=m.max_sphere_gap_m,
             gap_tolerance_m=m.gap_tolerance_m,
             extent_tolerance_m=m.extent_tolerance_m,
+            extent_trim_fraction=m.extent_trim_fraction,
             min_area_ratio=m.min_area_ratio,
             min_triple_product=m.min_triple_product,
             max_condition_number=m.max_condition_number,
