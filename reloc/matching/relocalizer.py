@@ -447,7 +447,8 @@ class Relocalizer:
         facing = horizontal_facing(used, p.ground_tolerance_rad)
         distances = sample_distances(vs_ptr, vs_pts)
         sub_ext = K.trimmed_extents(used.normals, used.offsets, used.sample_ptr,
-                                    np.ascontiguousarray(used.sample_points, dtype=np.float64), p.extent_trim_fraction)
+                                    np.ascontiguousarray(used.sample_points, dtype=np.float64),
+                                    p.extent_trim_fraction)
         timings["prepare"] = (time.perf_counter() - t0) * 1e3
         min_matched = p.min_matched_planes if p.scene_uniqueness else 3
 
