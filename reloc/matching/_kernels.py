@@ -354,15 +354,9 @@ def pair_extents(first, second, normals, offsets, ptr, points):
 
 @njit
 def dense_extents(normals, offsets, ptr, points):
-    """(N, N, 2): ``[a, b]`` the ``(lo, hi)`` of a's samples to b's plane, for every pair (submaps, brute force)."""
-    n = normals.shape[0]
-    out = np.empty((n, n, 2))
-    for a in range(n):
-        for b in range(n):
-            lo, hi = signed_range(normals, offsets, ptr, points, a, b)
-            out[a, b, 0] = lo
-            out[a, b, 1] = hi
-    return out
+    """(N, N, 2): ``[a, b]`` the ``(lo, hi)`` of a's samples to b's plane, for every pair (the map's, for the brute
+    force): :func:`trimmed_extents` with nothing left out."""
+    return trimmed_extents(normals, offsets, ptr, points, 0.0)
 
 
 @njit
