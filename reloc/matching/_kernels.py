@@ -947,7 +947,7 @@ def verify_transforms(R, t, cand, plane_order, sub_normals, sub_offsets, sub_cen
 # ---------------------------------------------------------------------------------------------------------------------
 # Planes hidden behind map surfaces
 
-HIDDEN_SHRINK = 0.7  # samples are pulled this far toward their plane's centre before their lines of sight are cast
+HIDDEN_SHRINK = 0.7  # samples keep this share of their distance from their plane's centre (pulled 30 % of the way in)
 _HIDDEN_PARALLEL = 0.866  # occluders within 30 degrees of the plane's own orientation are left to the conflict test
 
 
@@ -1035,11 +1035,12 @@ def _hidden_from(cx, cy, cz, px, py, pz, nx, ny, nz, map_normals, map_offsets, m
 def mark_hidden(R, t, state, sub_normals, vs_ptr, vs_points, views, map_normals, map_offsets, map_centroids,
                 map_radii, bases, surf_ptr, surf_keys, cell, margin, erode, min_fraction, out_frac):
     """Planes unknown to the map (``state`` 1) under each pose ``(R[h], t[h])`` that the map says the cameras could
-    not have seen: at least ``min_fraction`` of their verification samples, pulled ``HIDDEN_SHRINK`` of the way
-    toward their centre (off the borders that lines of sight graze), are hidden behind a map surface from every
-    camera position of ``views`` (the submap's viewpoints, its frame). Their state becomes 6 in place; ``out_frac``
-    (H, S) float32 gets the hidden fraction of each plane looked at (0 elsewhere; for a plane not marked, counted
-    only until the samples left could no longer make ``min_fraction``). Returns the planes marked.
+    not have seen: at least ``min_fraction`` of their verification samples, moved toward their centre to
+    ``HIDDEN_SHRINK`` of their distance from it (off the borders that lines of sight graze), are hidden behind a map
+    surface from every camera position of ``views`` (the submap's viewpoints, its frame). Their state becomes 6 in
+    place; ``out_frac`` (H, S) float32 gets the hidden fraction of each plane looked at (0 elsewhere; for a plane
+    not marked, counted only until the samples left could no longer make ``min_fraction``). Returns the planes
+    marked.
 
     A look-alike pose puts what the cameras saw through a doorway, or the side of a door jamb, behind a wall of the
     map, where the map knows nothing (it never saw behind the wall) but where nothing could have been seen either.
