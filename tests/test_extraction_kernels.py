@@ -622,8 +622,8 @@ def test_image_order_voxelization_matches_points_then_voxelize(stride):
     depth[10:14, 8:20] = 2.0  # a run of pixels in one cell
     box = frustum_box(K_SMALL, min_depth_m=0.3, max_depth_m=8.0, voxel_size_m=0.25)
     pts, pix = depth_to_points(depth, K_SMALL, min_depth_m=0.3, max_depth_m=8.0, pixel_stride=stride)
-    d32, pixel_key, cellcount, m = depth_to_key_image(depth, K_SMALL, box, voxel_size_m=0.25, min_depth_m=0.3,
-                                                      max_depth_m=8.0, pixel_stride=stride)
+    d32, pixel_key, cellcount, m, runs = depth_to_key_image(depth, K_SMALL, box, voxel_size_m=0.25, min_depth_m=0.3,
+                                                            max_depth_m=8.0, pixel_stride=stride)
     assert m == len(pts)
     # Keys: -1 at invalid pixels, the dense key of floor(p / size) at the others; counts per cell.
     v, u = np.mgrid[0:24:stride, 0:32:stride]
@@ -633,7 +633,11 @@ def test_image_order_voxelization_matches_points_then_voxelize(stride):
     key_ref[np.searchsorted(flat, pix)] = (ijk[:, 0] * box[4] + ijk[:, 1]) * box[5] + ijk[:, 2]
     assert np.array_equal(pixel_key, key_ref)
     assert np.array_equal(cellcount, np.bincount(key_ref[key_ref >= 0], minlength=len(cellcount)))
-    g = voxelize_key_image(d32, K_SMALL, pixel_key, cellcount, m, box, voxel_size_m=0.25, pixel_stride=stride)
+    # Runs: a new one wherever the key changes and at the start of every row of keys.
+    row_len = len(range(0, 32, stride))
+    starts = np.flatnonzero((np.diff(key_ref, prepend=-2) != 0) | (np.arange(len(key_ref)) % row_len == 0))
+    assert np.array_equal(runs, np.append(starts, len(key_ref)))
+    g = voxelize_key_image(d32, K_SMALL, pixel_key, cellcount, m, runs, box, voxel_size_m=0.25, pixel_stride=stride)
     ref = voxelize(pts, voxel_size_m=0.25)
     assert g.source_is_pixel and not ref.source_is_pixel
     assert np.array_equal(g.coords, ref.coords) and np.array_equal(g.start, ref.start)

@@ -140,36 +140,35 @@ def _image_keys(depth, stride, fy, cx, cy, inv_fx, z_min, z_max, inv_size, bx, b
 
 
 @njit(error_model="numpy")
-def _count_runs(pixel_key, n, cellcount):
-    """Points per cell of the keys ``pixel_key[:n]`` (-1 skipped) added to ``cellcount``; returns how many keys.
-    Neighbouring pixels mostly share a cell: a run is counted in a register, not through memory."""
-    m = 0
-    last = -1
-    run = 0
-    for i in range(n):
-        k = pixel_key[np.uint64(i)]  # unsigned indices: no test for an index from the end
-        if k < 0:
-            continue
-        m += 1
-        if k != last:
-            if last >= 0:
-                cellcount[np.uint64(last)] += run
+def _run_starts(pixel_key, rows, wr, runs):
+    """Where each run of equal keys starts in ``pixel_key`` (``rows`` rows of ``wr`` keys; a row always starts a
+    run) into ``runs``, with ``runs[n_runs] = rows * wr``; returns ``n_runs``. Branch-free (a run starts about every
+    7 pixels of a 640x480 frame: a surface near a cell face flickers between two cells, so a branch per key would
+    mispredict there)."""
+    nr = 0
+    for v in range(rows):
+        i0 = v * wr
+        last = np.int32(-2)  # no key: the row's first pixel starts a run
+        for u in range(wr):
+            i = i0 + u
+            k = pixel_key[np.uint64(i)]  # unsigned indices: no test for an index from the end
+            runs[np.uint64(nr)] = i
+            nr += 1 if k != last else 0
             last = k
-            run = 0
-        run += 1
-    if last >= 0:
-        cellcount[last] += run
-    return m
+    runs[nr] = rows * wr
+    return nr
 
 
 @njit(error_model="numpy")
-def key_image(depth, fx, fy, cx, cy, stride, z_min, z_max, inv_size, box, pixel_key, cellcount):
+def key_image(depth, fx, fy, cx, cy, stride, z_min, z_max, inv_size, box, pixel_key, cellcount, runs):
     """First pass of the image-order voxelization: the dense voxel key of every ``stride``-th pixel of ``depth``
     (H, W) float32, C-contiguous, into ``pixel_key`` (ceil(H/stride) * ceil(W/stride),) int32, -1 where the depth is
-    invalid (as :func:`backproject`), and the points per cell into ``cellcount`` (``nx*ny*nz`` int32, zeroed here). No point
+    invalid (as :func:`backproject`), where each run of equal keys starts into ``runs`` (that size + 1, int32; see
+    :func:`_run_starts`) and the points per cell into ``cellcount`` (``nx*ny*nz`` int32, zeroed here). No point
     is stored: :func:`scatter_image` computes them again, straight into their voxel's place. Returns the number
-    of valid pixels. ``box`` must contain every valid point's cell (the viewing frustum between ``z_min`` and
-    ``z_max``, see ``frustum_box``, with a one-cell margin); keys are clamped to it, which only guards the memory."""
+    of valid pixels and the number of runs. ``box`` must contain every valid point's cell (the viewing frustum
+    between ``z_min`` and ``z_max``, see ``frustum_box``, with a one-cell margin); keys are clamped to it, which only
+    guards the memory."""
     ncell = box[3] * box[4] * box[5]
     for c in range(ncell):
         cellcount[c] = 0
@@ -178,7 +177,17 @@ def key_image(depth, fx, fy, cx, cy, stride, z_min, z_max, inv_size, box, pixel_
     inv_fx = 1.0 / fx
     _image_keys(depth, stride, fy, cx, cy, inv_fx, z_min, z_max, inv_size, float(box[0]), float(box[1]),
                 float(box[2]), box[4] * box[5], box[5], ncell, pixel_key)
-    return _count_runs(pixel_key, ((h + stride - 1) // stride) * wr, cellcount)
+    nr = _run_starts(pixel_key, (h + stride - 1) // stride, wr, runs)
+    # Counted run by run: a cell's count goes through memory once per run, not once per pixel.
+    m = 0
+    for r in range(nr):
+        a = runs[r]
+        k = pixel_key[np.uint64(a)]
+        if k >= 0:
+            n = runs[r + 1] - a
+            cellcount[np.uint64(k)] += n
+            m += n
+    return m, nr
 
 
 @njit(error_model="numpy")
@@ -203,12 +212,14 @@ def _number_voxels(cellmap, ncell, voxel_key, voxel_start):
 
 
 @njit(error_model="numpy")
-def scatter_image(depth, fx, fy, cx, cy, stride, pixel_key, cellmap, box, voxel_key, voxel_start, sorted_pts,
-                  sorted_src):
+def scatter_image(depth, fx, fy, cx, cy, stride, pixel_key, runs, n_runs, cellmap, box, voxel_key, voxel_start,
+                  sorted_pts, sorted_src):
     """Second pass of the image-order voxelization: every valid pixel's point (as :func:`backproject`) written
-    straight to its voxel's place (``depth`` and ``sorted_pts`` C-contiguous). ``cellmap`` holds the points per cell on entry (from :func:`key_image`) and the
-    voxel id of each cell on return; outputs as :func:`scatter_dense`, except that ``sorted_src`` holds each
-    point's flat pixel index ``v * W + u`` (points of a voxel in raster order). Returns the number of voxels."""
+    straight to its voxel's place (``depth`` and ``sorted_pts`` C-contiguous), run by run (``runs[:n_runs + 1]``
+    from :func:`key_image`: a run's points go to consecutive places, with no test per pixel). ``cellmap`` holds the
+    points per cell on entry (from :func:`key_image`) and the voxel id of each cell on return; outputs as
+    :func:`scatter_dense`, except that ``sorted_src`` holds each point's flat pixel index ``v * W + u`` (points of a
+    voxel in raster order). Returns the number of voxels."""
     nv = _number_voxels(cellmap, box[3] * box[4] * box[5], voxel_key, voxel_start)
     cursor = np.empty(nv, np.int64)
     for v in range(nv):
@@ -220,56 +231,39 @@ def scatter_image(depth, fx, fy, cx, cy, stride, pixel_key, cellmap, box, voxel_
     xf = np.empty(wr)
     for iu in range(wr):
         xf[iu] = (iu * stride - cx) * inv_fx
-    last = -1
-    j = 0
-    i = 0
-    if stride == 1:
-        # Every pixel (the common case): the column is the index in the row, the pixel index i + u (8 % faster
-        # than the general loop's products). Indices are unsigned (no test for a negative index from the end) into
-        # flat views (no stride products): 15 % faster again.
-        flat = sorted_pts.reshape(-1)
-        dflat = depth.reshape(-1)
-        for v in range(h):
-            yf = (v - cy) / fy
-            for u in range(w):
-                iu = np.uint64(i + u)
-                key = pixel_key[iu]
-                if key < 0:
-                    continue
-                if key != last:
-                    if last >= 0:
-                        cursor[np.uint64(cellmap[np.uint64(last)])] = j
-                    last = key
-                    j = cursor[np.uint64(cellmap[np.uint64(key)])]
-                z = dflat[iu]
-                j3 = np.uint64(3 * j)
-                flat[j3] = np.float32(xf[np.uint64(u)] * z)
+    # Flat views and unsigned indices: no stride products and no test for an index from the end.
+    flat = sorted_pts.reshape(-1)
+    dflat = depth.reshape(-1)
+    for r in range(n_runs):
+        a = runs[r]
+        key = pixel_key[np.uint64(a)]
+        if key < 0:
+            continue
+        n = runs[r + 1] - a
+        vr = a // wr  # a run lies in one row
+        iu0 = a - vr * wr
+        v = vr * stride
+        yf = (v - cy) / fy
+        src0 = v * w + iu0 * stride
+        c = np.uint64(cellmap[np.uint64(key)])
+        j0 = cursor[c]
+        cursor[c] = j0 + n
+        if stride == 1:
+            for i in range(n):
+                z = dflat[np.uint64(src0 + i)]
+                j3 = np.uint64(3 * (j0 + i))
+                flat[j3] = np.float32(xf[np.uint64(iu0 + i)] * z)
                 flat[j3 + np.uint64(1)] = np.float32(yf * z)
                 flat[j3 + np.uint64(2)] = z
-                sorted_src[np.uint64(j)] = i + u
-                j += 1
-            i += w
-        return nv
-    for v in range(0, h, stride):
-        yf = (v - cy) / fy
-        row = v * w
-        for iu in range(wr):
-            key = pixel_key[i + iu]
-            if key < 0:
-                continue
-            if key != last:
-                # Runs of pixels of one cell advance a register, not the cell's cursor in memory.
-                if last >= 0:
-                    cursor[cellmap[last]] = j
-                last = key
-                j = cursor[cellmap[key]]
-            z = depth[v, iu * stride]
-            sorted_pts[j, 0] = np.float32(xf[iu] * z)
-            sorted_pts[j, 1] = np.float32(yf * z)
-            sorted_pts[j, 2] = z
-            sorted_src[j] = row + iu * stride
-            j += 1
-        i += wr
+                sorted_src[np.uint64(j0 + i)] = src0 + i
+            continue
+        for i in range(n):
+            z = dflat[np.uint64(src0 + i * stride)]
+            j3 = np.uint64(3 * (j0 + i))
+            flat[j3] = np.float32(xf[np.uint64(iu0 + i)] * z)
+            flat[j3 + np.uint64(1)] = np.float32(yf * z)
+            flat[j3 + np.uint64(2)] = z
+            sorted_src[np.uint64(j0 + i)] = src0 + i * stride
     return nv
 
 
@@ -495,10 +489,11 @@ def _warmup() -> None:
     cellmap = np.empty(int(b[3] * b[4] * b[5]), np.int32)
     pkey = np.empty(m, np.int64)
     pkey32 = np.empty(20, np.int32)
-    key_image(depth, 5.0, 5.0, 2.0, 1.5, 1, 0.1, 10.0, 4.0, b, pkey32, cellmap)
+    runs = np.empty(21, np.int32)
+    _, n_runs = key_image(depth, 5.0, 5.0, 2.0, 1.5, 1, 0.1, 10.0, 4.0, b, pkey32, cellmap, runs)
     drop_flying(depth, 2, 1.4e-3, 4.0, 0.03, np.empty_like(depth))
-    scatter_image(depth, 5.0, 5.0, 2.0, 1.5, 1, pkey32, cellmap, b, np.empty(m, np.int64), np.empty(m + 1, np.int64),
-                  np.empty((m, 3), np.float32), np.empty(m, np.int32))
+    scatter_image(depth, 5.0, 5.0, 2.0, 1.5, 1, pkey32, runs, n_runs, cellmap, b, np.empty(m, np.int64),
+                  np.empty(m + 1, np.int64), np.empty((m, 3), np.float32), np.empty(m, np.int32))
     count_keys(pts, m, 4.0, b, pkey, cellmap)
     vkey = np.empty(m, np.int64)
     vstart = np.empty(m + 1, np.int64)

@@ -68,13 +68,14 @@ def depth_to_key_image(
     max_depth_m: float = 8.0,
     pixel_stride: int = 1,
     workspace: Workspace | None = None,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, int, np.ndarray]:
     """The first half of image-order voxelization: the dense voxel key (in ``box``, from ``voxelize.frustum_box``)
     of every ``pixel_stride``-th pixel, -1 where the depth is invalid (as :func:`depth_to_points`), and the points
     per cell, without storing any point (``voxelize.voxelize_key_image`` makes them straight in voxel order).
 
     Returns ``(depth (H, W) float32 contiguous, pixel_key (ceil(H/s) * ceil(W/s),) int32, cellcount (nx*ny*nz,)
-    int32, number of valid pixels)``.
+    int32, number of valid pixels, runs)``: ``runs`` (R + 1,) int32 the index in ``pixel_key`` where each run of
+    equal keys starts (a row of pixels always starts one), then the end.
     """
     depth = np.asarray(depth_m)
     if depth.ndim != 2 or depth.shape != intrinsics.shape:
@@ -89,10 +90,11 @@ def depth_to_key_image(
     ws = fresh(workspace)
     pixel_key = ws.get("bp_pixel_key", cap, np.int32)
     cellcount = ws.get("vx_cellmap", int(box[3] * box[4] * box[5]), np.int32)
-    m = kv.key_image(depth, float(intrinsics.fx), float(intrinsics.fy), float(intrinsics.cx), float(intrinsics.cy),
-                     int(pixel_stride), float(min_depth_m), float(max_depth_m), 1.0 / float(voxel_size_m), box,
-                     pixel_key, cellcount)
-    return depth, pixel_key, cellcount, int(m)
+    runs = ws.get("bp_runs", cap + 1, np.int32)
+    m, n_runs = kv.key_image(depth, float(intrinsics.fx), float(intrinsics.fy), float(intrinsics.cx),
+                             float(intrinsics.cy), int(pixel_stride), float(min_depth_m), float(max_depth_m),
+                             1.0 / float(voxel_size_m), box, pixel_key, cellcount, runs)
+    return depth, pixel_key, cellcount, int(m), runs[: n_runs + 1]
 
 
 def drop_flying_pixels(

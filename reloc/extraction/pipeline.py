@@ -84,13 +84,13 @@ class PlaneExtractor:
         else:
             # Image-order voxelization: a pass that keys every pixel to its cell of the frustum, then one that
             # writes each point straight to its voxel's place (no point list in pixel order, no gather).
-            depth, pixel_key, cellcount, m = depth_to_key_image(
+            depth, pixel_key, cellcount, m, runs = depth_to_key_image(
                 depth, frame.intrinsics, self._box, voxel_size_m=p.voxel_size_m, min_depth_m=p.min_depth_m,
                 max_depth_m=p.max_depth_m, pixel_stride=p.pixel_stride, workspace=self.workspace,
             )
             timings = {"backproject": (time.perf_counter() - t0) * 1e3}
             t = time.perf_counter()
-            grid = voxelize_key_image(depth, frame.intrinsics, pixel_key, cellcount, m, self._box,
+            grid = voxelize_key_image(depth, frame.intrinsics, pixel_key, cellcount, m, runs, self._box,
                                       voxel_size_m=p.voxel_size_m, pixel_stride=p.pixel_stride,
                                       workspace=self.workspace)
             pts, pix = grid.points, None

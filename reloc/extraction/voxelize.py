@@ -112,19 +112,19 @@ def voxelize_keyed(points: np.ndarray, point_key: np.ndarray, cellcount: np.ndar
 
 
 def voxelize_key_image(depth: np.ndarray, intrinsics, pixel_key: np.ndarray, cellcount: np.ndarray, m: int,
-                       box: np.ndarray, *, voxel_size_m: float, pixel_stride: int = 1,
+                       runs: np.ndarray, box: np.ndarray, *, voxel_size_m: float, pixel_stride: int = 1,
                        workspace: Workspace | None = None) -> VoxelGrid:
     """The second half of image-order voxelization (after ``backproject.depth_to_key_image``): the ``m`` valid
     pixels' points computed again and written straight to their voxel's place, then each voxel's moments. The
     points are those of ``depth_to_points`` (same values, and in raster order inside a voxel, as
     :func:`voxelize_keyed` leaves them); ``source`` holds their flat pixel indices. ``cellcount`` becomes the cell
-    map."""
+    map. ``runs``: where each run of equal keys starts, then the end (from ``depth_to_key_image``)."""
     ws = fresh(workspace)
     g = _grid(ws, m, m, box, True, cellcount, ws.get("vx_tkeys", 1, np.int64), ws.get("vx_tvals", 1, np.int32),
               voxel_size_m, source_is_pixel=True)
     K = intrinsics
     nv = kv.scatter_image(depth, float(K.fx), float(K.fy), float(K.cx), float(K.cy), int(pixel_stride), pixel_key,
-                          cellcount, box, g.keys, g.start, g.points, g.source)
+                          runs, len(runs) - 1, cellcount, box, g.keys, g.start, g.points, g.source)
     g = _grid(ws, m, nv, box, True, cellcount, g.tkeys, g.tvals, voxel_size_m, source_is_pixel=True)
     if nv:
         kv.voxel_moments(g.points, g.start, nv, g.counts, g.sums, g.scatters)
