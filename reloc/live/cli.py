@@ -2,7 +2,34 @@
 
 from __future__ import annotations
 
+import signal
+
 import click
+
+
+class StartupSignals:
+    """SIGINT and SIGTERM while a command starts up: each raises ``KeyboardInterrupt`` (the command aborts and
+    writes nothing) and is remembered, since Python drops an exception raised in a handler that happens to run
+    inside a finalizer (numba collects garbage while it compiles the kernels; the signal was then lost and the loop
+    ran on). :meth:`check` raises it again where start-up ends; :meth:`restore` puts back the previous handlers."""
+
+    SIGNALS = (signal.SIGINT, signal.SIGTERM)
+
+    def __init__(self) -> None:
+        self.received: list[int] = []
+        self.previous = {s: signal.signal(s, self._handler) for s in self.SIGNALS}
+
+    def _handler(self, signum, _frame):
+        self.received.append(signum)
+        raise KeyboardInterrupt(f"signal {signum}")
+
+    def check(self) -> None:
+        if self.received:
+            raise KeyboardInterrupt(f"signal {self.received[0]} during start-up")
+
+    def restore(self) -> None:
+        for s, h in self.previous.items():
+            signal.signal(s, h)
 
 
 @click.command("run")
@@ -42,7 +69,6 @@ def run(camera, map_spec, serial_url, frames, duration_s, summary_path, config_p
     for a relocalization and `q` Enter quits.
     """
     import json
-    import signal
     import sys
 
     from drivers.source import SourceError
@@ -69,10 +95,11 @@ def run(camera, map_spec, serial_url, frames, duration_s, summary_path, config_p
 
     if follow_firmware and (not url or camera.partition(":")[0] != "sim"):
         raise click.UsageError("--follow-firmware needs --camera sim[:SCENE] and a serial link (--serial)")
-    map_planes, plane_map = load_plane_map(map_spec)
-    echo(f"map: {len(map_planes)} planes from {map_spec}")
+    startup = StartupSignals()
     bridge = source = None
     try:
+        map_planes, plane_map = load_plane_map(map_spec)
+        echo(f"map: {len(map_planes)} planes from {map_spec}")
         if url:
             bridge = make_bridge(url, cfg)
             echo(f"serial: {url}")
@@ -108,13 +135,15 @@ def run(camera, map_spec, serial_url, frames, duration_s, summary_path, config_p
             loop.stop()
             signal.signal(signum, signal.SIG_DFL)  # a second one ends the process the hard way
 
-        previous = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
+        startup.check()
+        previous = {s: signal.signal(s, on_signal) for s in StartupSignals.SIGNALS}
         try:
             summary = loop.run(max_frames=frames, duration_s=duration_s)
         finally:
             for s, h in previous.items():
                 signal.signal(s, h)
     finally:
+        startup.restore()
         if bridge is not None:
             bridge.close()
         if source is not None:
