@@ -480,6 +480,41 @@ def test_assemble_statistics_match_numpy(sample_m):
     assert ps.labels is None
 
 
+def test_plane_extent_of_a_depth_image_matches_its_general_loop(monkeypatch):
+    """``plane_extent`` has a loop of its own for a depth image's points with the default cells (labels, pixel
+    sources, every pixel); given the same points as a cloud with a pixel table (the general loop), it makes the
+    same radii, areas, samples and label image, bit for bit."""
+    import sim
+    from reloc.extraction import PlaneExtractor
+    from reloc.extraction import _kernels_finalize as kf
+
+    frame = sim.simulate_frames(scene="office", trajectory="robot", n_frames=2, noise="kinect", camera="kinect",
+                                width=160, height=120, seed=4)[1]
+    calls = []
+    real = kf.plane_extent
+
+    def capture(*args):
+        calls.append([a.copy() if isinstance(a, np.ndarray) else a for a in args])
+        return real(*args)
+
+    monkeypatch.setattr(kf, "plane_extent", capture)
+    PlaneExtractor().extract(frame)
+    (args,) = calls
+    with_labels, src_is_pixel, stride = args[16], args[18], args[23]
+    assert with_labels and src_is_pixel and stride == 1 and args[6] == args[10]  # the image loop's case
+    outs = []
+    for general in (False, True):
+        a = [x.copy() if isinstance(x, np.ndarray) else x for x in args]
+        if general:  # the same pixels through a table: sources are indices into it
+            a[18] = False
+            a[19] = np.arange(frame.depth_m.size, dtype=np.int32)
+        real(*a)
+        outs.append(a)
+    for i, name in ((13, "samples"), (14, "radii"), (15, "areas"), (24, "labels")):
+        assert np.array_equal(outs[0][i], outs[1][i]), name
+    assert (outs[0][24] >= 0).sum() > 0.5 * frame.depth_m.size and outs[0][15].max() > 1.0
+
+
 def test_plane_set_renumbers_the_refinement_assignment_like_numpy():
     """The refinement's last pass leaves its point assignment in its own numbering with a table to the merged
     planes (fragments merged, bevels dropped); the plane set applies the table point by point. Same plane set and
