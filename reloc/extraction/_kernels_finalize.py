@@ -449,10 +449,10 @@ def _multi_plane_voxel(sorted_pts, point_bits, step, by_order, a, b, cand, nc, p
     """:func:`assign_points` for a voxel with several candidate planes (all its points, or about 1 in ``step`` of
     them for a cheap refit pass, which assigns nothing). In phases over a float64 copy of the points in ``scratch``
     (``SCRATCH_ROWS``, >= b - a): the nearest candidate of every point (:func:`_nearest_candidates`, vectorised),
-    whether it is near a corner (scalar, from the stored depth errors), then per candidate the masked sums of its
-    points (:func:`_masked_sums`, vectorised; skipped for a candidate nearest to none of them). ``parallel``
-    (MAX_CANDIDATES, MAX_CANDIDATES) bool and ``n_of`` (MAX_CANDIDATES,) int64 scratch (1 where a candidate is
-    some point's nearest).
+    whether it is near a corner (from the stored depth errors, candidate pair by pair, vectorised), then per
+    candidate the masked sums of its points (:func:`_masked_sums`, vectorised; skipped for a candidate nearest to
+    none of them). ``parallel`` (MAX_CANDIDATES, MAX_CANDIDATES) bool and ``n_of`` (MAX_CANDIDATES,) int64 scratch
+    (1 where a candidate is some point's nearest).
     Returns the number of points assigned."""
     mloc = _gather_points(sorted_pts, point_bits, step, by_order, a, b, scratch)
     _nearest_candidates(scratch, mloc, cand, nc, planes, band, power, coeff, ray_mode)
@@ -465,37 +465,38 @@ def _multi_plane_voxel(sorted_pts, point_bits, step, by_order, a, b, cand, nc, p
                 parallel[k, o] = (planes[c, 0] * planes[q, 0] + planes[c, 1] * planes[q, 1]
                                   + planes[c, 2] * planes[q, 2]) > COS_CORNER
     n_in = 0
-    n_of[:nc] = 0
     for i in range(mloc):
-        ui = np.uint64(i)
-        best = int(scratch[5, ui])
-        if best < 0:
-            if step == 1:
-                point_plane[np.uint64(a + i)] = -1
-            continue
-        ub = np.uint64(best)
-        q = cand[ub]
-        if step == 1:
-            point_plane[np.uint64(a + i)] = q
-        n_in += 1
-        if not accumulate:
-            continue
-        n_of[ub] = 1  # a plain store: no chain through memory from point to point
-        eb = scratch[np.uint64(SCR_E + best), ui]
-        lim = CORNER_BANDS * band[np.uint64(q)]
-        amb = False
-        for k in range(nc):
-            if k == best or parallel[ub, np.uint64(k)]:
-                continue
-            if abs(scratch[np.uint64(SCR_E + k), ui] - eb) < lim:
-                amb = True
-                break
-        if amb:
-            acc_amb[np.uint64(q)] += 1
-            # The nearest candidate, shifted past the candidates for a corner point.
-            scratch[5, ui] = best + MAX_CANDIDATES + 1
+        n_in += 1 if scratch[5, np.uint64(i)] >= 0.0 else 0
+    if step == 1:
+        for i in range(mloc):
+            c = scratch[5, np.uint64(i)]
+            point_plane[np.uint64(a + i)] = cand[np.uint64(max(c, 0.0))] if c >= 0.0 else -1
     if not accumulate:
         return n_in
+    # Corner points, candidate pair by candidate pair in loops over the points that vectorise: a point nearest to
+    # candidate ``bb`` is at a corner when another, non-parallel candidate meets its pixel ray within
+    # CORNER_BANDS bands (of ``bb``) of where ``bb`` does. Its code is then shifted past the candidates.
+    for bb in range(nc):
+        bf = np.float64(bb)
+        shifted = np.float64(bb + MAX_CANDIDATES + 1)
+        lim = CORNER_BANDS * band[cand[bb]]
+        row_b = np.uint64(SCR_E + bb)
+        hits = 0
+        n_mine = 0
+        for k in range(nc):
+            if k == bb or parallel[bb, k]:
+                continue
+            row_k = np.uint64(SCR_E + k)
+            for i in range(mloc):
+                ui = np.uint64(i)
+                hit = (scratch[5, ui] == bf) & (abs(scratch[row_k, ui] - scratch[row_b, ui]) < lim)
+                scratch[5, ui] = shifted if hit else scratch[5, ui]
+                hits += 1 if hit else 0
+        acc_amb[cand[bb]] += hits
+        for i in range(mloc):
+            c = scratch[5, np.uint64(i)]
+            n_mine += 1 if (c == bf) | (c == shifted) else 0
+        n_of[bb] = 1 if n_mine > 0 else 0
     for k in range(nc):
         if n_of[k] == 0:  # no point is nearest to this candidate: nothing to sum
             continue
