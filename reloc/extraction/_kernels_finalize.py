@@ -1079,7 +1079,7 @@ def plane_extent(sorted_pts, point_plane, table, m, centroids, tb, area_cell, ar
                 uk = np.uint64(k)
                 if point_plane[uk] != raw:
                     break
-                k += 1
+                k += 1  # first: the tests below go on to the next point with ``continue``
                 dd, u, v = _extent_point(flat, np.uint64(3 * (k - 1)), acc, cx, cy, cz, t0, t1, t2, t3, t4, t5, inv_s,
                                          s0, s1, sn, sv, so)
                 r2 = dd if dd > r2 else r2

@@ -224,7 +224,7 @@ def scatter_image(depth, fx, fy, cx, cy, stride, pixel_key, runs, n_runs, cellma
     cursor = np.empty(nv, np.int64)
     for v in range(nv):
         cursor[v] = voxel_start[v]
-    h, w = depth.shape
+    w = depth.shape[1]
     inv_fx = 1.0 / fx
     wr = (w + stride - 1) // stride
     # (u - cx) / fx once per column: the same float64 product as in backproject, so the same float32 points.
@@ -248,16 +248,7 @@ def scatter_image(depth, fx, fy, cx, cy, stride, pixel_key, runs, n_runs, cellma
         c = np.uint64(cellmap[np.uint64(key)])
         j0 = cursor[c]
         cursor[c] = j0 + n
-        if stride == 1:
-            for i in range(n):
-                z = dflat[np.uint64(src0 + i)]
-                j3 = np.uint64(3 * (j0 + i))
-                flat[j3] = np.float32(xf[np.uint64(iu0 + i)] * z)
-                flat[j3 + np.uint64(1)] = np.float32(yf * z)
-                flat[j3 + np.uint64(2)] = z
-                sorted_src[np.uint64(j0 + i)] = src0 + i
-            continue
-        for i in range(n):
+        for i in range(n):  # as fast as a loop of its own for stride 1 (timed)
             z = dflat[np.uint64(src0 + i * stride)]
             j3 = np.uint64(3 * (j0 + i))
             flat[j3] = np.float32(xf[np.uint64(iu0 + i)] * z)
