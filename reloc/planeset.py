@@ -168,8 +168,7 @@ class PlaneSet:
         """The same planes moved by ``T_a_b`` from this frame (b) into frame ``frame`` (a).
 
         Normals, offsets, centroids, samples, sufficient statistics, gravity, viewpoints and the (n, d) covariance
-        all move;
-        radii, areas and counts do not change. Labels are dropped (they belong to the original image).
+        all move; radii, areas and counts do not change. Labels are dropped (they belong to the original image).
         """
         T = np.asarray(T_a_b, dtype=np.float64)
         R, t = T[:3, :3], T[:3, 3]

@@ -166,9 +166,9 @@ def test_index_gives_the_brute_force_candidates(structural):
 
 def test_trimmed_extents_leave_out_a_few_stray_samples():
     """Each range of ``trimmed_extents`` is the (k+1)-th smallest and largest signed distance, k = floor(trim * n),
-    as a sort gives (with 0 the min and max: ``dense_extents``); a plane without samples gives (inf, -inf). A wall seen through a doorway from 3.2 to 6.2 m off the
-    corridor's wall, with 6 of its 828 samples on the floor at 1.6-2.0 m (replicate B's ToF meeting_rooms/robot/1),
-    keeps 3.2 m at 1 %."""
+    as a sort gives (with 0 the min and max: ``dense_extents``); a plane without samples gives (inf, -inf). A wall
+    seen through a doorway from 3.2 to 6.2 m off the corridor's wall, with 6 of its 828 samples on the floor at
+    1.6-2.0 m (replicate B's ToF meeting_rooms/robot/1), keeps 3.2 m at 1 %."""
     rng = np.random.default_rng(7)
     counts = np.array([0, 3, 150, 401])
     ptr = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
