@@ -170,7 +170,7 @@ class MergingConfig(_Section):
     enabled: bool = Field(True, description="Off = the paper's VR-NM (every voxel plane stays separate).")
     grow_max_angle_deg: float = Field(10.0, gt=0, le=90, description="Growth: normals of neighbours within this angle.")
     grow_max_offset_m: float = Field(
-        0.04, gt=0, description="Growth: the neighbour's centroid within this distance of the growing plane..."
+        0.02, gt=0, description="Growth: the neighbour's centroid within this distance of the growing plane..."
     )
     grow_offset_sigmas: float = Field(
         2.0, ge=0, description="...or within this many depth sigmas of it, when more (a voxel face moves a centroid)."

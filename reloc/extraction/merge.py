@@ -120,7 +120,7 @@ def merge_voxel_planes(
     *,
     merge: bool = True,
     grow_max_angle_rad: float = np.radians(10.0),
-    grow_max_offset_m: float = 0.04,
+    grow_max_offset_m: float = 0.02,
     grow_offset_sigmas: float = 2.0,
     grow_angle_noise_sigmas: float = 2.0,
     max_thickness_sigmas: float = 4.0,
