@@ -153,6 +153,14 @@ class ExtractionConfig(_Section):
         description="Robust passes over the points near each merged plane: refit, then fragments merge again "
         "(0 = planes straight from the merged voxel moments).",
     )
+    corner_min_angle_deg: float = Field(
+        20.0, gt=0, le=90,
+        description="The refinement's corner test: another candidate plane at least this far off in angle, met by a "
+        "point's pixel ray near where its own plane is, makes the point a corner point (left out of the refit; a "
+        "plane made mostly of them is a bevel). Closer candidates are pieces of one surface. 10 drops the strips "
+        "tilted 13-18 deg across a step between parallel surfaces (a door in a niche) and gives cleaner planes, but "
+        "cost relocalization (docs/BENCHMARKS.md, 'A door in a niche').",
+    )
     bevel_max_width_voxels: float | None = Field(
         None, gt=0,
         description="A plane made mostly of corner points is dropped as a bevel across the corner; with a number, "

@@ -623,7 +623,8 @@ def test_refinement_pass_sums_match_numpy(step, outliers):
     kfin.assign_points(
         g.points, g.points.view(np.int32), step, True, g.start, len(g), g.keys, g.box, g.dense, g.cellmap, g.tkeys,
         g.tvals, g.counts, g.sums, g.scatters, plane_of_voxel, planes, band, 2, coeff, True, False, point_plane,
-        True, True, refs, acc["w"], acc["s"], acc["S"], acc["n"], acc["sum"], acc["amb"], acc["sup"],
+        True, True, np.cos(np.radians(20.0)), refs, acc["w"], acc["s"], acc["S"], acc["n"], acc["sum"], acc["amb"],
+        acc["sup"],
         np.zeros((kfin.SCRATCH_ROWS, int(g.counts.max()))),
     )
     ref = _refit_sums_numpy(g.points, g.start, plane_of_voxel, planes, band, refs, coeff, step)
@@ -683,10 +684,11 @@ def test_image_order_voxelization_matches_points_then_voxelize(stride):
     assert np.array_equal(g.lookup(ref.coords), np.arange(len(ref)))
 
 
-def _multi_candidate_numpy(p, cand, planes, band, refs, coeff, ray_mode):
-    """Nearest candidate within its band of every point (first of equals), corner points (another non-parallel
-    candidate whose ray crossing is within 1.5 bands), and the refit / support sums per plane, with NumPy."""
-    from reloc.extraction._kernels_finalize import COS_CORNER, CORNER_BANDS
+def _multi_candidate_numpy(p, cand, planes, band, refs, coeff, ray_mode, cos_corner):
+    """Nearest candidate within its band of every point (first of equals), corner points (another candidate at
+    least ``acos(cos_corner)`` off in angle whose ray crossing is within 1.5 bands), and the refit / support sums
+    per plane, with NumPy."""
+    from reloc.extraction._kernels_finalize import CORNER_BANDS
 
     z = np.maximum(p[:, 2], 1e-3)
     g = z / (coeff * z * z)
@@ -711,7 +713,7 @@ def _multi_candidate_numpy(p, cand, planes, band, refs, coeff, ray_mode):
     for i in np.flatnonzero(best >= 0):
         k = best[i]
         q = cand[k]
-        corner = any(o != k and planes[cand[o], :3] @ planes[q, :3] <= COS_CORNER
+        corner = any(o != k and planes[cand[o], :3] @ planes[q, :3] <= cos_corner
                      and abs(e[i, o] - e[i, k]) < CORNER_BANDS * band[q] for o in range(len(cand)))
         x = p[i] - refs[q]
         out["sup"][q] += np.concatenate([[1.0], x, np.outer(x, x)[up]])
@@ -729,11 +731,13 @@ def _multi_candidate_numpy(p, cand, planes, band, refs, coeff, ray_mode):
     return out
 
 
+@pytest.mark.parametrize("corner_deg", [20.0, 2.0])
 @pytest.mark.parametrize("ray_mode", [True, False])
 @pytest.mark.parametrize("step", [1, 4])
-def test_multi_candidate_voxel_matches_numpy(ray_mode, step):
+def test_multi_candidate_voxel_matches_numpy(ray_mode, step, corner_deg):
     """The voxel of ``assign_points`` with several candidate planes (a corner of two walls and a third plane
-    nearly parallel to one of them), against NumPy: nearest candidate, corner points, refit and support sums."""
+    nearly parallel to one of them, 2.9 deg: a corner only when the corner angle is below that), against NumPy:
+    nearest candidate, corner points, refit and support sums."""
     from reloc.extraction import _kernels_finalize as kfin
 
     rng = np.random.default_rng(21)
@@ -756,14 +760,19 @@ def test_multi_candidate_voxel_matches_numpy(ray_mode, step):
     point_plane = np.full(m, -7, np.int32)
     n_in = kfin._multi_plane_voxel(
         pts, pts.view(np.int32), step, True, 0, m, cand, len(cand), planes, band, 2, coeff, ray_mode, point_plane, True,
-        True, refs, acc["w"], acc["s"], acc["S"], acc["n"], acc["sum"], acc["amb"], acc["sup"],
+        True, np.cos(np.radians(corner_deg)), refs, acc["w"], acc["s"], acc["S"], acc["n"], acc["sum"], acc["amb"],
+        acc["sup"],
         np.zeros((kfin.SCRATCH_ROWS, m)), np.zeros((kfin.MAX_CANDIDATES, kfin.MAX_CANDIDATES), np.bool_),
         np.full(kfin.MAX_CANDIDATES, 99, np.int64))
-    ref = _multi_candidate_numpy(pts[::step].astype(np.float64), cand, planes, band, refs, coeff, ray_mode)
+    ref = _multi_candidate_numpy(pts[::step].astype(np.float64), cand, planes, band, refs, coeff, ray_mode,
+                                 np.cos(np.radians(corner_deg)))
     assert n_in == int((ref["point_plane"] >= 0).sum())
     # The fourth candidate (y = 1.5) is nearest to no point: its sums are skipped and must stay zero.
     assert not np.any(ref["point_plane"] == 3) and not acc["w"][3] and not acc["sup"][3].any()
-    assert ref["n"][0] > 20 and ref["n"][1] > 20 and ref["amb"].sum() > 5  # both walls fit, corner points seen
+    if corner_deg == 20.0:
+        assert ref["n"][0] > 20 and ref["n"][1] > 20 and ref["amb"].sum() > 5  # both walls fit, corner points seen
+    else:  # the 2.9 deg plane counts as a corner: every point of the first wall and of it is a corner point
+        assert ref["n"][0] == 0 and ref["n"][2] == 0 and ref["n"][1] > 20 and ref["amb"][0] > 40
     wmax = ref["w"].max()
     assert np.allclose(acc["w"], ref["w"], rtol=1e-9)
     assert np.allclose(acc["s"][:, :], ref["s"], rtol=1e-9, atol=1e-9 * wmax)

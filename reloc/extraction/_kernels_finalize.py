@@ -24,8 +24,6 @@ MAX_CANDIDATES = 8
 # Rows of the float64 scratch of assign_points: x, y, z, g, u, nearest candidate, then e_k per candidate.
 SCR_E = 6
 SCRATCH_ROWS = SCR_E + MAX_CANDIDATES
-# Candidates closer than this in angle (cos 20 deg) are not treated as a corner by the refit.
-COS_CORNER = 0.94
 CORNER_BANDS = 1.5
 
 
@@ -444,8 +442,8 @@ def _nearest_candidates(scratch, mloc, cand, nc, planes, band, power, coeff, ray
 
 @njit(error_model="numpy")
 def _multi_plane_voxel(sorted_pts, point_bits, step, by_order, a, b, cand, nc, planes, band, power, coeff, ray_mode,
-                       point_plane, accumulate, use_noise, refs, acc_w, acc_s, acc_S, acc_n, acc_sum, acc_amb, sup,
-                       scratch, parallel, n_of):
+                       point_plane, accumulate, use_noise, cos_corner, refs, acc_w, acc_s, acc_S, acc_n, acc_sum,
+                       acc_amb, sup, scratch, parallel, n_of):
     """:func:`assign_points` for a voxel with several candidate planes (all its points, or about 1 in ``step`` of
     them for a cheap refit pass, which assigns nothing). In phases over a float64 copy of the points in ``scratch``
     (``SCRATCH_ROWS``, >= b - a): the nearest candidate of every point (:func:`_nearest_candidates`, vectorised),
@@ -457,13 +455,14 @@ def _multi_plane_voxel(sorted_pts, point_bits, step, by_order, a, b, cand, nc, p
     mloc = _gather_points(sorted_pts, point_bits, step, by_order, a, b, scratch)
     _nearest_candidates(scratch, mloc, cand, nc, planes, band, power, coeff, ray_mode)
     if accumulate:
-        # Nearly parallel candidates are pieces of one surface (fragments that merge later), not a corner.
+        # Candidates within the corner angle (``cos_corner``) are pieces of one surface (fragments that merge
+        # later), not a corner.
         for k in range(nc):
             for o in range(nc):
                 q = cand[k]
                 c = cand[o]
                 parallel[k, o] = (planes[c, 0] * planes[q, 0] + planes[c, 1] * planes[q, 1]
-                                  + planes[c, 2] * planes[q, 2]) > COS_CORNER
+                                  + planes[c, 2] * planes[q, 2]) > cos_corner
     n_in = 0
     for i in range(mloc):
         n_in += 1 if scratch[5, np.uint64(i)] >= 0.0 else 0
@@ -617,8 +616,8 @@ def _reachable(v, nc, cand, own, counts, sums, scatters, planes, band, power, co
 def assign_points(sorted_pts, point_bits, step, by_order, voxel_start, nv, voxel_key, box, dense, cellmap, tkeys,
                   tvals,
                   counts, sums, scatters, plane_of_voxel, planes, band, power, coeff, ray_mode, refine_boundary,
-                  point_plane, accumulate, use_noise, refs, acc_w, acc_s, acc_S, acc_n, acc_sum, acc_amb, sup,
-                  scratch):
+                  point_plane, accumulate, use_noise, cos_corner, refs, acc_w, acc_s, acc_S, acc_n, acc_sum, acc_amb,
+                  sup, scratch):
     """Plane of every point (sorted order) into ``point_plane`` (-1 for none); returns the number assigned.
 
     Per point and candidate plane ``q``: the signed depth error over the depth sigma, ``e_q = z r_q / (n_q . p)
@@ -636,8 +635,9 @@ def assign_points(sorted_pts, point_bits, step, by_order, voxel_start, nv, voxel
     points (those assigned to the plane); all zeroed here. Near the intersection of two planes the noise decides which one a point looks
     closest to, so keeping every point for its nearest plane would cut each plane's noise one-sidedly there and
     tilt it. A point is left out of the refit (and counted in ``acc_amb``) when its pixel ray meets another,
-    non-parallel candidate within ``CORNER_BANDS`` bands of where it meets its own (``|e_q - e_o|`` small): that
-    uses the noise-free ray, not the noisy depth, so it truncates nothing.
+    non-parallel candidate (normals further apart than ``acos(cos_corner)``) within ``CORNER_BANDS`` bands of where
+    it meets its own (``|e_q - e_o|`` small): that uses the noise-free ray, not the noisy depth, so it truncates
+    nothing.
 
     A neighbour's plane is a candidate only where it can reach the voxel's points: its distance to the voxel
     centroid at most 3 standard deviations of the points along its normal (from the voxel's moments ``counts``,
@@ -689,8 +689,8 @@ def assign_points(sorted_pts, point_bits, step, by_order, voxel_start, nv, voxel
                                               acc_w, acc_s, acc_S, acc_n, acc_sum, sup, scratch)
             continue
         n_assigned += _multi_plane_voxel(sorted_pts, point_bits, step, by_order, a, b, cand, nc, planes, band, power,
-                                         coeff, ray_mode, point_plane, accumulate, use_noise, refs, acc_w, acc_s,
-                                         acc_S, acc_n, acc_sum, acc_amb, sup, scratch, parallel, n_of)
+                                         coeff, ray_mode, point_plane, accumulate, use_noise, cos_corner, refs, acc_w,
+                                         acc_s, acc_S, acc_n, acc_sum, acc_amb, sup, scratch, parallel, n_of)
     if accumulate:
         for p in range(n_planes):
             acc_S[p, 1, 0] = acc_S[p, 0, 1]
@@ -1251,7 +1251,7 @@ def _warmup() -> None:
             assign_points(pts, pts.view(np.int32), step, by_order, start, 2, vkey, box, dense, cellmap, tk, tv,
                           np.array([15, 15], np.int64), pts[:2].astype(np.float64) * 15, np.tile(np.eye(3), (2, 1, 1)) * 60,
                           np.array([0, -1], np.int32), planes, np.array([4.0]), 2, 1.425e-3, True, True, pp, True, True,
-                          refs, aw, a_s, aS, an, asum, amb, np.zeros((1, 10)), np.empty((SCRATCH_ROWS, m)))
+                          0.985, refs, aw, a_s, aS, an, asum, amb, np.zeros((1, 10)), np.empty((SCRATCH_ROWS, m)))
     for ray in (True, False):
         solve_planes(aw, a_s, aS, refs, ray, planes.copy(), np.zeros((1, 4)), np.zeros((1, 3, 3)))
         refine_keep(aw, a_s, aS, refs, ray, planes.copy(), np.zeros((1, 4)), np.zeros((1, 3, 3)), an, amb, asum,

@@ -84,7 +84,7 @@ def assemble_plane_set(
         kf.assign_points(
             grid.points, grid.points.view(np.int32), 1, False, grid.start, len(grid), grid.keys, grid.box, grid.dense,
             grid.cellmap, grid.tkeys, grid.tvals, grid.counts, grid.sums, grid.scatters, merged.plane_of_voxel,
-            planes, band, power, float(noise_coeff), ray, bool(refine_boundary), point_plane, False, False, z3,
+            planes, band, power, float(noise_coeff), ray, bool(refine_boundary), point_plane, False, False, 1.0, z3,
             np.zeros(1), z3, np.zeros((1, 3, 3)), np.zeros(1, np.int64), z3, np.zeros(1, np.int64),
             np.zeros((1, 10)), ws.get("rf_scratch", (kf.SCRATCH_ROWS, max(int(grid.counts.max()), 1)), np.float64),
         )

@@ -195,6 +195,7 @@ def refine_merged_planes(
     ordered: bool = False,
     workspace: Workspace | None = None,
     bevel_max_width_m: float = math.inf,
+    corner_min_angle_rad: float = np.radians(20.0),
 ) -> MergedPlanes:
     """One robust pass over the points near each merged plane: refit, then merge fragments again.
 
@@ -206,9 +207,10 @@ def refine_merged_planes(
     ``point_step > 1`` (a power of two) refits from about 1 in ``point_step`` points (a cheap first pass; every
     ``point_step``-th of a voxel when ``ordered``, as the points of a depth image are); with 1 the pass's
     assignment of every point is kept in the result (``point_plane``).
-    A plane whose points are mostly corner points (their pixel ray meets another, non-parallel candidate nearly
-    where it meets this plane) is a bevel across that corner and is dropped, unless it is wider than
-    ``bevel_max_width_m`` across its shorter in-plane axis (:func:`plane_minor_widths`; inf: any width).
+    A plane whose points are mostly corner points (their pixel ray meets another candidate, more than
+    ``corner_min_angle_rad`` away in angle, nearly where it meets this plane) is a bevel across that corner and is
+    dropped, unless it is wider than ``bevel_max_width_m`` across its shorter in-plane axis
+    (:func:`plane_minor_widths`; inf: any width). Corner points are left out of every plane's refit.
     """
     ws = fresh(workspace)
     ray = noise_direction == "ray"
@@ -231,8 +233,9 @@ def refine_merged_planes(
         grid.points, grid.points.view(np.int32), int(point_step), bool(ordered), grid.start, len(grid), grid.keys, grid.box,
         grid.dense, grid.cellmap, grid.tkeys, grid.tvals, grid.counts, grid.sums, grid.scatters,
         merged.plane_of_voxel, planes, band, noise_law_code(noise_model), float(noise_coeff), ray,
-        bool(refine_boundary), point_plane, True, bool(noise_weights), refs, acc_w, acc_s, acc_S, acc_n, acc_sum,
-        acc_amb, sup, ws.get("rf_scratch", (kfin.SCRATCH_ROWS, max(int(grid.counts.max()), 1)), np.float64),
+        bool(refine_boundary), point_plane, True, bool(noise_weights), math.cos(corner_min_angle_rad), refs, acc_w,
+        acc_s, acc_S, acc_n, acc_sum, acc_amb, sup,
+        ws.get("rf_scratch", (kfin.SCRATCH_ROWS, max(int(grid.counts.max()), 1)), np.float64),
     )
     # Refit, drop the bevels and take the pass's statistics (one kernel). A plane whose points are mostly at a
     # corner of two other planes is a bevel across that corner made by voxels holding both surfaces: dropped, its

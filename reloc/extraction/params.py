@@ -78,6 +78,11 @@ class ExtractionParams:
     plane's voxels farther than this many sigmas are not labelled as the plane), ``refine_boundary`` (points of
     neighbouring voxels join it when inside that band), ``refine_iterations`` (robust passes over the points near
     each merged plane: refit, then fragments merge again; 0 = planes straight from the merged moments),
+    ``corner_min_angle_rad`` (the refinement's corner test: a point whose pixel ray meets another candidate plane
+    at least this far off in angle near where it meets its own is a corner point, left out of the refit; closer
+    candidates are pieces of one surface. At 10 deg instead of 20 a strip across a step between parallel surfaces,
+    such as a door in a 6 cm niche, tilted 13-18 deg, counts as the bevel it is and the planes of whole frames come
+    out cleaner, but relocalization lost true poses: see docs/BENCHMARKS.md, "A door in a niche"),
     ``bevel_max_width_voxels`` (None: any plane made mostly of corner points is dropped as a bevel across the
     corner; a number: only one at most this many voxels wide across its shorter in-plane axis, since voxels holding
     two surfaces make a strip along their corner about a voxel wide. Off by default: see docs/BENCHMARKS.md,
@@ -127,6 +132,7 @@ class ExtractionParams:
     inlier_sigmas: float = 4.0
     refine_boundary: bool = True
     refine_iterations: int = 2
+    corner_min_angle_rad: float = math.radians(20.0)
     bevel_max_width_voxels: float | None = None
     min_plane_points: int = 200
     min_plane_area_m2: float = 0.04
@@ -141,7 +147,7 @@ class ExtractionParams:
             "irls_kernel_sigmas",
             "noise_coeff", "grow_max_angle_rad", "grow_max_offset_m", "undergrown_max_angle_rad",
             "undergrown_max_depth_angle_rad", "undergrown_max_offset_m", "undergrown_radius_scale", "area_patch_m",
-            "sample_spacing_m", "inlier_sigmas",
+            "sample_spacing_m", "inlier_sigmas", "corner_min_angle_rad",
         )
         for name in positive:
             v = getattr(self, name)
@@ -154,6 +160,9 @@ class ExtractionParams:
             v = getattr(self, name)
             if not isinstance(v, (int, float)) or not math.isfinite(v) or v < 0:
                 raise ValueError(f"ExtractionParams.{name}: expected a finite number >= 0, got {v!r}")
+        if self.corner_min_angle_rad > math.pi / 2:
+            raise ValueError(f"ExtractionParams.corner_min_angle_rad: expected at most pi/2, got "
+                             f"{self.corner_min_angle_rad!r}")
         if not (isinstance(self.layer_min_shared, (int, float)) and 0 <= self.layer_min_shared <= 1):
             raise ValueError(f"ExtractionParams.layer_min_shared: expected a number in [0, 1], got "
                              f"{self.layer_min_shared!r}")

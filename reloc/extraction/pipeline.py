@@ -169,7 +169,8 @@ class PlaneExtractor:
                 undergrown_max_depth_angle_rad=p.undergrown_max_depth_angle_rad,
                 undergrown_max_offset_m=p.undergrown_max_offset_m, undergrown_radius_scale=p.undergrown_radius_scale,
                 noise_direction=p.noise_direction, point_step=4 if it < p.refine_iterations - 1 else 1, ordered=ordered,
-                workspace=ws, bevel_max_width_m=p.bevel_max_width_m, **noise,
+                workspace=ws, bevel_max_width_m=p.bevel_max_width_m, corner_min_angle_rad=p.corner_min_angle_rad,
+                **noise,
             )
         timings["refine"] = (time.perf_counter() - t) * 1e3
         t = time.perf_counter()
