@@ -167,6 +167,11 @@ def test_params_from_config_and_validation():
     cfg = config_from_dict({"merging": {"enabled": False}, "camera": {"gravity_source": "imu"}})
     p2 = ExtractionParams.from_config(cfg)
     assert p2.merge is False and p2.gravity_fallback == "none"
+    corner = ExtractionParams.from_config(config_from_dict({"extraction": {"corner_min_angle_deg": 10.0}}))
+    assert corner.corner_min_angle_rad == pytest.approx(np.radians(10.0))
+    assert (p.corner_min_angle_rad, p.grow_max_offset_m) == (pytest.approx(np.radians(20.0)), 0.02)
+    with pytest.raises(ValueError, match="corner_min_angle_rad"):
+        ExtractionParams(corner_min_angle_rad=2.0)
     with pytest.raises(ValueError, match="voxel_size_m"):
         ExtractionParams(voxel_size_m=-1.0)
     with pytest.raises(ValueError, match="noise_direction"):
