@@ -37,6 +37,24 @@ def test_summary_counts_precision_recall_and_errors():
     assert s.median_rotation_error_deg == pytest.approx(0.2)
     assert s.mean_ms == pytest.approx(2.0) and s.stage_mean_ms == {"verify": 1.0}
     assert "75.00" in format_table([s])
+    assert s.identifiable == 0 and math.isnan(s.recall_identifiable)  # nothing checked at its true pose
+
+
+def test_recall_over_identifiable_queries_leaves_out_views_the_planes_cannot_pin_down():
+    def o(label, identifiable, why=""):
+        return Outcome("s", "q", label != "TN", False, "x", "", label, identifiable=identifiable,
+                       identifiable_reason=why)
+
+    outs = [o("TP", True), o("TP", True), o("FN", True), o("FN", False, "pose weakly constrained"),
+            o("FN", False, "3 submap planes"), o("TN", None)]
+    s = summarize("s", outs)
+    assert s.recall == pytest.approx(2 / 5)
+    assert (s.identifiable, s.identified) == (3, 2) and s.recall_identifiable == pytest.approx(2 / 3)
+    row = format_table([s]).splitlines()[-1].split()
+    assert row[8:10] == ["3", "66.67"]
+    d = json.loads(json.dumps(s.to_dict()))
+    assert d["identifiable"] == 3 and d["recall_identifiable"] == pytest.approx(0.666667)
+    assert json.loads(json.dumps(outs[3].to_dict()))["identifiable_reason"] == "pose weakly constrained"
 
 
 def test_ambiguity_labels_come_from_the_scene_geometry():
@@ -83,6 +101,15 @@ def test_short_end_to_end_run_has_no_false_positive(quick_results):
             assert o.translation_error_m < 0.1 and o.rotation_error_deg < 1.0
         if not o.positive:
             assert o.status == "rejected" and o.reason
+    # Every positive, unambiguous query is checked at its true pose; a true positive's truth holds (its refined pose
+    # is the one found), and a query whose truth does not hold says why.
+    checked = [o for o in outcomes if o.positive and not o.ambiguous]
+    assert checked and all(o.identifiable is not None for o in checked)
+    assert all(o.identifiable is None for o in outcomes if not o.positive)
+    assert all(o.identifiable for o in checked if o.label == "TP")
+    assert all(o.identifiable_reason for o in checked if not o.identifiable)
+    assert s.identifiable == sum(o.identifiable for o in checked) and s.identified == s.TP
+    assert s.recall_identifiable == pytest.approx(s.TP / s.identifiable)
 
 
 def test_demo_runs_and_reports(tmp_path, monkeypatch, capsys):

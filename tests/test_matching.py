@@ -297,6 +297,59 @@ def test_result_is_json_ready(living_relocalizer):
     assert back["matched_planes"] >= 5 and back["counts"]["rounds"] >= 1
 
 
+def test_confirm_holds_a_true_pose_and_refines_a_nearby_one(living_relocalizer):
+    """A pose given from outside (odometry, ground truth) is checked as a winner is: refined over its matched planes
+    and held to the final tolerances. From the truth and from 6 cm and 1 deg off, the same least-squares pose as
+    ``locate`` finds; 2 m off, rejected."""
+    rng = np.random.default_rng(11)
+    T = look_at((5, 4, 1.5), (1, 1, 0.5))
+    sub = view_planes(furnished_room("living"), T, point_noise_m=0.005, normal_noise_deg=0.3, offset_noise_m=0.005,
+                      rng=rng)
+    found = living_relocalizer.locate(sub)
+    assert found.relocalized
+    res = living_relocalizer.confirm(sub, T)
+    assert res.relocalized and res.reason == "" and res.n_matched >= 5
+    t_err, r_err = pose_error(res.T_map_cam, T)
+    assert t_err < 0.03 and r_err < 0.3  # the noise of 5 mm in offsets and 0.3 deg in normals, over 12 planes
+    np.testing.assert_allclose(res.T_map_cam, found.T_map_cam, atol=1e-9)
+    nudge = transform_from_rotation_translation(rotation_from_axis_angle(np.array([0.0, 0.0, math.radians(1.0)])),
+                                                np.array([0.05, -0.03, 0.02]))
+    near = living_relocalizer.confirm(sub, nudge @ T)
+    assert near.relocalized
+    np.testing.assert_allclose(near.T_map_cam, res.T_map_cam, atol=1e-9)
+    far = living_relocalizer.confirm(sub, transform_from_rotation_translation(np.eye(3), [2.0, 0.0, 0.0]) @ T)
+    assert not far.relocalized and far.T_map_cam is None and far.reason
+    assert "total" in res.timings_ms and res.ambiguity_ratio == math.inf  # no rival: no runner-up
+    with pytest.raises(ValueError, match="T_map_cam: expected a rigid transform"):
+        living_relocalizer.confirm(sub, np.diag([2.0, 1.0, 1.0, 1.0]))
+    with pytest.raises(ValueError, match="T_map_cam: expected a finite 4x4 pose"):
+        living_relocalizer.confirm(sub, np.eye(3))
+
+
+def test_confirm_says_a_corridor_view_with_nothing_across_it_does_not_fix_the_pose():
+    """Floor, ceiling, both walls, door panels and a lamp: nothing faces along the corridor, so no search could
+    answer the view, and its true pose is rejected too (no least-squares pose along the corridor); looking at the
+    corridor's end wall, the true pose holds."""
+    from reloc.evaluation.synthetic import Rect, room
+
+    rects = room(30.0, 2.0, 2.7)
+    for x in (6.0, 12.0, 18.0):  # doors 6 cm deep in their niches, on both sides, 3 m out of step
+        rects.append(Rect((x, 0.06, 1.0), (0, 1, 0), (-1, 0, 0), 0.45, 1.0))
+        rects.append(Rect((x + 3.0, 1.94, 1.0), (0, -1, 0), (1, 0, 0), 0.45, 1.0))
+    rects.append(Rect((14.0, 1.0, 2.6), (0, 0, -1), (1, 0, 0), 0.3, 0.3))  # a ceiling lamp
+    reloc = Relocalizer(scene_planes(rects), MatchingParams())
+    T_mid = look_at((10.0, 1.0, 1.3), (13.0, 0.3, 1.0))
+    sub = view_planes(rects, T_mid)
+    assert len(sub) >= 5
+    assert np.all(np.abs((sub.normals @ T_mid[:3, :3].T)[:, 0]) < 1e-9)  # nothing faces along the corridor
+    res = reloc.confirm(sub, T_mid)
+    assert not res.relocalized and "no least-squares pose" in res.reason
+    assert not reloc.locate(sub).relocalized
+    T_end = look_at((26.0, 1.0, 1.3), (29.0, 0.5, 1.0))
+    res = reloc.confirm(view_planes(rects, T_end), T_end)
+    assert res.relocalized and pose_error(res.T_map_cam, T_end)[0] < 1e-6
+
+
 def test_kernel_density_matches_the_log_map_reference():
     from reloc.transforms import exp_se3, invert, log_se3
 

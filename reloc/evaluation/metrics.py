@@ -10,6 +10,14 @@ Counting follows the paper, made explicit:
   accepted it counts as FP (a guess), whatever the pose. Such queries are left out of the recall.
 
 Precision ``P = TP / (TP + FP)``, recall ``R = TP / (TP + FN)``.
+
+A positive, unambiguous query is *identifiable* when the map confirms its true pose by the checks a winning pose
+must pass (:meth:`reloc.matching.Relocalizer.confirm`: matched planes, explained fraction, support along the
+weakest direction, after the least-squares refinement, within the TP thresholds of the truth). A query that is not
+identifiable cannot be answered right by any search under the same acceptance rules: its submap does not pin the
+pose down (a corridor view with nothing across the corridor) or the map does not hold what it sees. ``R_id``, the
+recall over the identifiable queries, is what the search and the decision among poses lose; ``R`` also counts what
+the planes cannot tell.
 """
 
 from __future__ import annotations
@@ -42,6 +50,8 @@ class Outcome:
     total_ms: float = math.nan
     timings_ms: dict = field(default_factory=dict)
     counts: dict = field(default_factory=dict)
+    identifiable: bool | None = None  # None: a negative or ambiguous query, or not checked
+    identifiable_reason: str = ""  # why the true pose is not confirmed (empty when it is)
 
     def to_dict(self) -> dict:
         def num(v):
@@ -52,7 +62,8 @@ class Outcome:
             "status": self.status, "reason": self.reason, "label": self.label,
             "translation_error_m": num(self.translation_error_m), "rotation_error_deg": num(self.rotation_error_deg),
             "total_ms": num(self.total_ms), "timings_ms": {k: num(v) for k, v in self.timings_ms.items()},
-            "counts": dict(self.counts),
+            "counts": dict(self.counts), "identifiable": self.identifiable,
+            "identifiable_reason": self.identifiable_reason,
         }
 
 
@@ -82,6 +93,9 @@ class Summary:
     median_ms: float
     p95_ms: float
     stage_mean_ms: dict
+    identifiable: int = 0  # positive, unambiguous queries whose true pose the map confirms
+    identified: int = 0  # of those, the TPs
+    recall_identifiable: float = math.nan  # identified / identifiable
 
     def to_dict(self) -> dict:
         out = {}
@@ -94,9 +108,12 @@ class Summary:
 
 
 def summarize(name: str, outcomes: list[Outcome]) -> Summary:
-    """Counts, precision, recall, median pose errors of the TPs and times over ``outcomes``."""
+    """Counts, precision, recall (also over the identifiable queries), median pose errors of the TPs and times
+    over ``outcomes``."""
     labels = [o.label for o in outcomes]
     tp, tn, fp, fn = (labels.count(x) for x in ("TP", "TN", "FP", "FN"))
+    identifiable = sum(o.identifiable is True for o in outcomes)
+    identified = sum(o.identifiable is True and o.label == "TP" for o in outcomes)
     errs = np.array([(o.translation_error_m, o.rotation_error_deg) for o in outcomes if o.label == "TP"]).reshape(-1, 2)
     times = np.array([o.total_ms for o in outcomes if math.isfinite(o.total_ms)])
     stages: dict[str, list[float]] = {}
@@ -113,6 +130,8 @@ def summarize(name: str, outcomes: list[Outcome]) -> Summary:
         median_ms=float(np.median(times)) if len(times) else math.nan,
         p95_ms=float(np.percentile(times, 95)) if len(times) else math.nan,
         stage_mean_ms={k: float(np.mean(v)) for k, v in stages.items()},
+        identifiable=identifiable, identified=identified,
+        recall_identifiable=identified / identifiable if identifiable else math.nan,
     )
 
 
@@ -121,14 +140,16 @@ def _fmt(v: float, scale: float = 1.0, digits: int = 2) -> str:
 
 
 def format_table(rows: list[Summary], first_column: str = "scene") -> str:
-    """A plain-text table: name, TP TN FP FN, ambiguous, P %, R %, median errors (cm, deg), mean/median ms."""
+    """A plain-text table: name, TP TN FP FN, ambiguous, P %, R %, identifiable queries and the recall over them,
+    median errors (cm, deg), mean/median ms."""
     head = (f"{first_column:<16} {'TP':>4} {'TN':>4} {'FP':>4} {'FN':>4} {'amb':>4} {'P[%]':>7} {'R[%]':>7} "
-            f"{'t_err[cm]':>9} {'r_err[deg]':>10} {'mean[ms]':>9} {'med[ms]':>8}")
+            f"{'ident':>5} {'R_id[%]':>7} {'t_err[cm]':>9} {'r_err[deg]':>10} {'mean[ms]':>9} {'med[ms]':>8}")
     lines = [head, "-" * len(head)]
     for s in rows:
         lines.append(
             f"{s.name:<16} {s.TP:>4} {s.TN:>4} {s.FP:>4} {s.FN:>4} {s.ambiguous:>4} {_fmt(s.precision, 100):>7} "
-            f"{_fmt(s.recall, 100):>7} {_fmt(s.median_translation_error_m, 100):>9} "
+            f"{_fmt(s.recall, 100):>7} {s.identifiable:>5} {_fmt(s.recall_identifiable, 100):>7} "
+            f"{_fmt(s.median_translation_error_m, 100):>9} "
             f"{_fmt(s.median_rotation_error_deg, 1, 3):>10} {_fmt(s.mean_ms, 1, 1):>9} {_fmt(s.median_ms, 1, 1):>8}"
         )
     return "\n".join(lines)

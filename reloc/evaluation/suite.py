@@ -21,7 +21,7 @@ from typing import Callable
 import numpy as np
 
 from reloc.evaluation.ambiguity import is_ambiguous
-from reloc.evaluation.metrics import Outcome, Summary, classify, summarize
+from reloc.evaluation.metrics import TP_MAX_ROTATION_DEG, TP_MAX_TRANSLATION_M, Outcome, Summary, classify, summarize
 from reloc.mapping import MappingParams, PlaneMap, build_map, build_submap
 from reloc.matching import MatchingParams, Relocalizer, ablation_params, scaled_to_sensor
 from reloc.planeset import PlaneSet
@@ -185,20 +185,31 @@ def make_queries(scene, spec: EvalSpec, source: Callable, mapping: MappingParams
 
 def evaluate_queries(relocalizer: Relocalizer, queries: list[Query], scene_name: str,
                      progress: Callable[[int], None] | None = None) -> list[Outcome]:
-    """Relocalize each query in the map of ``scene_name``; queries of other scenes are negatives."""
+    """Relocalize each query in the map of ``scene_name``; queries of other scenes are negatives. A positive,
+    unambiguous query is also checked at its true pose (:meth:`Relocalizer.confirm`): whether it is identifiable
+    (:mod:`reloc.evaluation.metrics`)."""
     out = []
     for q in queries:
         res = relocalizer.locate(q.submap)
         positive = q.scene == scene_name
         errors = pose_error(res.T_map_cam, q.T_world_cam) if (positive and res.relocalized) else None
         label = classify(positive, q.ambiguous and positive, res.relocalized, errors)
+        identifiable, why = None, ""
+        if positive and not q.ambiguous:
+            check = relocalizer.confirm(q.submap, q.T_world_cam)
+            why = check.reason
+            if check.relocalized:
+                e = pose_error(check.T_map_cam, q.T_world_cam)
+                if e[0] > TP_MAX_TRANSLATION_M or e[1] > TP_MAX_ROTATION_DEG:
+                    why = f"refined true pose {e[0]:.2f} m, {e[1]:.1f} deg off"
+            identifiable = not why
         out.append(Outcome(
             scene=scene_name, query=q.name, positive=positive, ambiguous=q.ambiguous and positive,
             status=res.status, reason=res.reason, label=label,
             translation_error_m=errors[0] if errors else math.nan, rotation_error_deg=errors[1] if errors else math.nan,
             total_ms=res.timings_ms.get("total", math.nan),
             timings_ms={**{k: v for k, v in res.timings_ms.items() if k != "total"}, **q.timings_ms},
-            counts=res.counts,
+            counts=res.counts, identifiable=identifiable, identifiable_reason=why,
         ))
         if progress is not None:
             progress(1)

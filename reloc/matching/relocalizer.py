@@ -521,29 +521,53 @@ class Relocalizer:
             timings["decide"] += (time.perf_counter() - t0) * 1e3
         if not decision.accepted:
             return finish(_rejected(decision.reason, counts, timings))
-        # Refine the winner over all its matched planes, then verify and refine again.
+        return finish(self._conclude(used, order, vs_ptr, vs_pts, judged, judged is not coarse, decision, min_matched,
+                                     counts, timings))
+
+    def _conclude(self, used, order, vs_ptr, vs_pts, hyps, tightened: bool, decision: Decision, min_matched: int,
+                  counts: dict, timings: dict) -> RelocResult:
+        """The accepted ``decision``'s winner (a hypothesis of ``hyps``; ``tightened``: of the decision over refined
+        poses) refined over all its matched planes, then verified and refined again: the result."""
         t0 = time.perf_counter()
-        hyps = judged
         b = decision.best
         match_row, proj_row = hyps.match[b], hyps.proj[b]
         explained = float(hyps.explained[b])
         T = transform_from_rotation_translation(hyps.R[b], hyps.t[b])
-        refined, why = p.refine_iterations == 0, ""
-        if judged is not coarse:
+        refined = self.params.refine_iterations == 0
+        if tightened:
             # Decided over refined poses: the winner's pose is already a least-squares pose; refine on from its
             # matches at the final tolerances (its sharp matches alone may not fix it, e.g. along a corridor).
             v = self.verify(used, vs_ptr, vs_pts, T[None, :3, :3], T[None, :3, 3], hyps.cand[b: b + 1],
                             require_triplet=False, tight=True)
             match_row, proj_row, explained = v.match[0], v.proj[0], float(v.explained[0])
             refined = bool(v.passed[0] and hyps.refined[b])
+        T, match_row, explained, why = self._final_checks(used, vs_ptr, vs_pts, T, hyps.cand[b: b + 1], match_row,
+                                                          proj_row, explained, refined, min_matched)
+        timings["refine"] = (time.perf_counter() - t0) * 1e3
+        if why:
+            return _rejected(why, counts, timings)
+        js = np.flatnonzero(match_row >= 0)
+        matched = np.stack([order[js], match_row[js].astype(np.int64)], axis=1)
+        return RelocResult(RELOCALIZED, "", T, decision.score, ratio(decision.score, decision.runner_up_score),
+                           matched, explained, counts, timings)
+
+    def _final_checks(self, used, vs_ptr, vs_pts, T, cand_row, match_row, proj_row, explained, refined: bool,
+                      min_matched: int):
+        """The last steps of an accepted pose ``T`` (4, 4) with its matches ``match_row`` / ``proj_row``: refined by
+        least squares over its matched planes (``refine_iterations`` times, each refined pose verified again), then
+        held to the final tolerances, to the explained fraction and to the support along its weakest direction.
+        ``refined`` says whether ``T`` is already a least-squares pose. Returns ``(T, match_row, explained, reason)``,
+        ``reason`` empty when the pose is accepted."""
+        p = self.params
+        why = ""
         for _ in range(p.refine_iterations):
             T_new = self.refine(used, match_row, proj_row)
             if T_new is None:
                 why = "no least-squares pose over its matched planes (fewer than 3 agree, or they do not fix it)"
                 break
-            v = self.verify(used, vs_ptr, vs_pts, T_new[None, :3, :3], T_new[None, :3, 3], hyps.cand[b: b + 1],
+            v = self.verify(used, vs_ptr, vs_pts, T_new[None, :3, :3], T_new[None, :3, 3], cand_row,
                             require_triplet=False)
-            if not v.passed[0] or not explains_enough(v.explained[0], v.unknown[0], v.state[0], p) or v.n_matched[0] < min_matched:
+            if not self._holds(v, min_matched):
                 why = f"{int(v.n_matched[0])} planes, {v.explained[0]:.2f} of the submap at the refined pose"
                 break
             T, match_row, proj_row, explained = T_new, v.match[0], v.proj[0], float(v.explained[0])
@@ -552,31 +576,81 @@ class Relocalizer:
             # The winner's own pose comes from three planes and holds only within the loose search tolerances: a
             # pose 0.14 m and 2.5 deg off matched all five planes of a soak submap whose least-squares pose (2 cm
             # off) no longer matched its smallest plane. A pose the matched planes do not confirm is not accepted.
-            timings["refine"] = (time.perf_counter() - t0) * 1e3
-            return finish(_rejected(f"refined pose does not verify: {why}", counts, timings))
+            return T, match_row, explained, f"refined pose does not verify: {why}"
         # The refined pose must hold at tight tolerances: a true pose is precise to a centimetre, while a look-alike
         # (a desk and monitor in another room's corner) matches only within the loose search tolerances.
-        v = self.verify(used, vs_ptr, vs_pts, T[None, :3, :3], T[None, :3, 3], hyps.cand[b: b + 1],
-                        require_triplet=False, tight=True)
-        timings["refine"] = (time.perf_counter() - t0) * 1e3
-        if not v.passed[0] or not explains_enough(v.explained[0], v.unknown[0], v.state[0], p) or v.n_matched[0] < min_matched:
-            return finish(_rejected(
-                f"pose does not hold at tight tolerances: {int(v.n_matched[0])} planes, {v.explained[0]:.2f} of the "
-                "submap", counts, timings,
-            ))
-        match_row, proj_row, explained = v.match[0], v.proj[0], float(v.explained[0])
+        v = self.verify(used, vs_ptr, vs_pts, T[None, :3, :3], T[None, :3, 3], cand_row, require_triplet=False,
+                        tight=True)
+        if not self._holds(v, min_matched):
+            return T, match_row, explained, (f"pose does not hold at tight tolerances: {int(v.n_matched[0])} planes, "
+                                             f"{v.explained[0]:.2f} of the submap")
+        match_row, explained = v.match[0], float(v.explained[0])
         weakest = support_per_direction(used, match_row, p.min_counted_area_m2) if p.scene_uniqueness else math.inf
         if weakest < p.min_direction_support_m2:
+            return T, match_row, explained, (f"pose weakly constrained: {weakest:.2f} m^2 of matched planes along "
+                                             f"its weakest direction (needs {p.min_direction_support_m2})")
+        return T, match_row, explained, ""
+
+    def _holds(self, v: Verification, min_matched: int) -> bool:
+        """Whether the single pose verified in ``v`` passes, explains enough and matches ``min_matched`` planes."""
+        return bool(v.passed[0] and explains_enough(v.explained[0], v.unknown[0], v.state[0], self.params)
+                    and v.n_matched[0] >= min_matched)
+
+    def confirm(self, submap: PlaneSet, T_map_cam) -> RelocResult:
+        """Whether the map confirms a given pose of ``submap`` (4x4 ``T_map_cam``: a pose predicted by odometry, or
+        the ground truth of an evaluation): :meth:`locate` with that pose as its only hypothesis, no search and no
+        rival. The pose must verify against the map (its planes matched, none in known free space), win the
+        decision alone (explaining enough of the submap, at the sharper offsets of the decision over refined poses),
+        and pass the winner's last steps: refined by least squares over its matched planes, held to the final
+        tolerances, with enough support along its weakest direction. This says whether the submap pins that pose
+        down, not whether another place looks the same.
+
+        Returns a :class:`RelocResult`: relocalized with the refined pose, or rejected with the reason.
+        """
+        if not isinstance(submap, PlaneSet):
+            raise ValueError(f"submap: expected a PlaneSet, got {type(submap).__name__}")
+        submap.check_geometry("submap")
+        T0 = np.asarray(T_map_cam, dtype=np.float64)
+        if T0.shape != (4, 4) or not np.all(np.isfinite(T0)):
+            raise ValueError(f"T_map_cam: expected a finite 4x4 pose, got shape {T0.shape}")
+        R0 = T0[:3, :3]
+        if not np.allclose(R0.T @ R0, np.eye(3), atol=1e-6) or np.linalg.det(R0) <= 0 or not np.allclose(
+                T0[3], [0.0, 0.0, 0.0, 1.0]):
+            raise ValueError("T_map_cam: expected a rigid transform (orthonormal rotation, last row 0 0 0 1)")
+        p = self.params
+        t_start = time.perf_counter()
+        timings = {s: 0.0 for s in (*STAGES, *SUBSTAGES)}
+        counts = {"submap_planes": len(submap), "planes_used": 0}
+
+        def finish(result: RelocResult) -> RelocResult:
+            result.timings_ms["total"] = (time.perf_counter() - t_start) * 1e3
+            return result
+
+        used, order, vs_ptr, vs_pts = self.prepare(submap)
+        S = len(used)
+        counts["planes_used"] = S
+        min_matched = p.min_matched_planes if p.scene_uniqueness else 3
+        if S < min_matched or len(self.index) < 3:
             return finish(_rejected(
-                f"pose weakly constrained: {weakest:.2f} m^2 of matched planes along its weakest direction (needs "
-                f"{p.min_direction_support_m2})", counts, timings,
+                f"{S} submap planes and {len(self.index)} map planes; at least {min_matched} needed", counts, timings
             ))
-        js = np.flatnonzero(match_row >= 0)
-        matched = np.stack([order[js], match_row[js].astype(np.int64)], axis=1)
-        return finish(RelocResult(
-            RELOCALIZED, "", T, decision.score, ratio(decision.score, decision.runner_up_score), matched, explained,
-            counts, timings,
-        ))
+        # The verification takes the first three planes of the candidate row first; any three do for a given pose.
+        cand = np.array([[0, 1, 2, 0, 0, 0]], dtype=np.int32)
+        R, t = np.ascontiguousarray(T0[None, :3, :3]), np.ascontiguousarray(T0[None, :3, 3])
+        v = self.verify(used, vs_ptr, vs_pts, R, t, cand, require_triplet=False)
+        if not v.passed[0]:
+            in_free = f", {int(v.free[0])} in known free space" if v.free[0] else ""
+            return finish(_rejected(
+                f"pose does not verify: {int(v.n_matched[0])} planes matched{in_free}, {v.explained[0]:.2f} of the "
+                "submap explained", counts, timings,
+            ))
+        hyps = _Hypotheses(S)
+        hyps.add(R, t, cand, v)
+        decision, judged = self._judge(hyps, used, vs_ptr, vs_pts, min_matched, timings)
+        if not decision.accepted:
+            return finish(_rejected(decision.reason, counts, timings))
+        return finish(self._conclude(used, order, vs_ptr, vs_pts, judged, judged is not hyps, decision, min_matched,
+                                     counts, timings))
 
 
 def locate(plane_map, submap: PlaneSet, params: MatchingParams | None = None) -> RelocResult:
