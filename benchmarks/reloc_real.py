@@ -16,7 +16,9 @@ whose 5 frames look at different parts of the room). Submaps of ``--windows`` fr
 Methods side by side on the same maps and submaps: ours (the shipped matcher) and the paper's decision rules
 (``reloc_accuracy.paper_settings``). Counting as in ``reloc.evaluation.metrics`` (TP within 0.25 m and 5 deg of the
 mocap pose). For each positive the submap is also verified at its mocap pose: the number of distinct map planes it
-matches there says whether the map and the view hold the 5 distinct surfaces scene uniqueness asks for.
+matches there says whether the map and the view hold the 5 distinct surfaces scene uniqueness asks for, and
+whether the mocap pose is confirmed (``Relocalizer.confirm``: the pose ``locate`` would accept were it its only
+hypothesis) says whether the query is identifiable at all under ours' acceptance rules.
 
 ``python benchmarks/reloc_real.py [--windows 1,10] [--set KEY=VALUE] [--variant KEY=VALUE[,...]] [--name reloc_real]``
 (``--set``, repeatable: an ExtractionParams setting for every clip; ``--variant``, repeatable: matcher settings
@@ -135,6 +137,23 @@ def matched_at_truth(reloc, submap, T_map_cam) -> int:
     return int(v.n_matched[0])
 
 
+def identifiable(reloc, submap, T_map_cam) -> tuple[bool, str]:
+    """Whether the map confirms the submap's true pose as ``locate`` would accept it (``Relocalizer.confirm``, its
+    refined pose within the TP thresholds), and the reason when it does not."""
+    from reloc.evaluation.metrics import TP_MAX_ROTATION_DEG, TP_MAX_TRANSLATION_M
+    from reloc.transforms import pose_error
+
+    if len(submap) == 0:
+        return False, "no submap planes"
+    check = reloc.confirm(submap, T_map_cam)
+    if not check.relocalized:
+        return False, check.reason
+    t_err, r_err = pose_error(check.T_map_cam, T_map_cam)
+    if t_err > TP_MAX_TRANSLATION_M or r_err > TP_MAX_ROTATION_DEG:
+        return False, f"refined true pose {t_err:.2f} m, {r_err:.1f} deg off"
+    return True, ""
+
+
 def run(root: Path, windows=(1, 10), extraction=None, cases=CASES, variants=None) -> dict:
     """Every case, window and method: per-query records and TP / TN / FP / FN per (case, window, method); planes
     extracted with ``extraction`` (ExtractionParams, None = the defaults). ``variants``: more methods, name ->
@@ -207,16 +226,18 @@ def run(root: Path, windows=(1, 10), extraction=None, cases=CASES, variants=None
                     }
                     if positive and method == "ours":
                         rec["matched_at_truth"] = matched_at_truth(reloc, submap, truth)
+                        rec["identifiable"], rec["identifiable_reason"] = identifiable(reloc, submap, truth)
                     records.append(rec)
     rows = {}
     for r in records:
         key = (r["case"], r["window"], r["method"])
         row = rows.setdefault(key, {"TP": 0, "TN": 0, "FP": 0, "FN": 0, "matched_at_truth": [], "errors_m": [],
-                                    "ms": []})
+                                    "ms": [], "identifiable": 0})
         row[r["label"]] += 1
         row["ms"].append(r["ms"])
         if "matched_at_truth" in r:
             row["matched_at_truth"].append(r["matched_at_truth"])
+            row["identifiable"] += int(r["identifiable"])
         if r["translation_error_m"] is not None and r["label"] == "TP":
             row["errors_m"].append(r["translation_error_m"])
     return {"maps": map_info, "rows": [{"case": k[0], "window": k[1], "method": k[2], **v} for k, v in rows.items()],
@@ -250,7 +271,7 @@ def main() -> int:
     t0 = time.time()
     res = run(root, windows, extraction, variants=variants)
     head = ["case", "window", "method", "TP", "TN", "FP", "FN", "median error", "matched at mocap pose",
-            "median ms"]
+            "identifiable", "median ms"]
     table = []
     for r in res["rows"]:
         mt = r["matched_at_truth"]
@@ -258,6 +279,7 @@ def main() -> int:
             r["case"], r["window"], r["method"], r["TP"], r["TN"], r["FP"], r["FN"],
             f"{1e3 * float(np.median(r['errors_m'])):.1f} mm" if r["errors_m"] else "-",
             f"{min(mt)}-{max(mt)} (median {float(np.median(mt)):g})" if mt else "",
+            f"{r['identifiable']} of {len(mt)}" if mt else "",
             f"{float(np.median(r['ms'])):.1f}",
         ])
     print_table(head, table, title="Real clips: positives from the mapped clip, negatives from the others")

@@ -66,6 +66,20 @@ def test_map_and_view_line_up_at_the_mocap_pose(results):
         assert counts[len(counts) // 2] >= 3, (case.name, counts)
 
 
+def test_each_positive_says_whether_its_mocap_pose_is_identifiable(results):
+    # The mocap pose checked as locate's only hypothesis: a view matching fewer than the 5 distinct surfaces scene
+    # uniqueness asks for cannot be confirmed, and each view not confirmed says why; an answered view is confirmed.
+    ours = [q for q in results["queries"] if q["positive"] and q["method"] == "ours"]
+    assert ours and all(isinstance(q["identifiable"], bool) for q in ours)
+    assert not any(q["identifiable"] for q in ours if q["matched_at_truth"] < 5)
+    assert all(q["identifiable_reason"] for q in ours if not q["identifiable"])
+    assert all(q["identifiable"] for q in ours if q["label"] == "TP")
+    for r in results["rows"]:
+        if r["method"] == "ours":
+            assert r["identifiable"] == sum(q["identifiable"] for q in ours
+                                            if (q["case"], q["window"]) == (r["case"], r["window"]))
+
+
 def test_gravity_of_a_frame_without_imu_comes_from_the_mocap_world(real_data):
     import numpy as np
 
