@@ -154,6 +154,9 @@ def run_demo(spec: DemoSpec | None = None, cfg=None, *, progress: Callable[[str,
         "counts": {"TP": s.TP, "TN": s.TN, "FP": s.FP, "FN": s.FN},
         "precision": None if not math.isfinite(s.precision) else round(s.precision, 4),
         "recall": None if not math.isfinite(s.recall) else round(s.recall, 4),
+        # Positives whose true pose the map confirms (reloc.evaluation.metrics) and the recall over them.
+        "identifiable": s.identifiable,
+        "recall_identifiable": None if not math.isfinite(s.recall_identifiable) else round(s.recall_identifiable, 4),
         "median_translation_error_m": None if not math.isfinite(s.median_translation_error_m)
         else round(s.median_translation_error_m, 5),
         "median_rotation_error_deg": None if not math.isfinite(s.median_rotation_error_deg)
@@ -176,10 +179,14 @@ def format_demo(result: dict) -> str:
         f"({result['queries']['ambiguous']} ambiguous), {result['queries']['negative']} negative "
         f"(scene {result['spec']['negative_scene']}), submaps of {result['spec']['window_frames']} frames",
         "",
-        f"{'TP':>4} {'TN':>4} {'FP':>4} {'FN':>4} {'P[%]':>7} {'R[%]':>7} {'t_err[cm]':>10} {'r_err[deg]':>10}",
+        f"{'TP':>4} {'TN':>4} {'FP':>4} {'FN':>4} {'P[%]':>7} {'R[%]':>7} {'ident':>5} {'R_id[%]':>7} "
+        f"{'t_err[cm]':>10} {'r_err[deg]':>10}",
         f"{c['TP']:>4} {c['TN']:>4} {c['FP']:>4} {c['FN']:>4} {pct(result['precision']):>7} "
-        f"{pct(result['recall']):>7} {cm(result['median_translation_error_m']):>10} "
+        f"{pct(result['recall']):>7} {result['identifiable']:>5} {pct(result['recall_identifiable']):>7} "
+        f"{cm(result['median_translation_error_m']):>10} "
         f"{'-' if result['median_rotation_error_deg'] is None else format(result['median_rotation_error_deg'], '.3f'):>10}",
+        "(ident: positives whose true pose the map confirms, R_id the recall over them; the others no search can "
+        "answer under the acceptance rules)",
         "",
         f"{'stage':<22} {'median[ms]':>10} {'p95[ms]':>9} {'mean[ms]':>9}",
     ]

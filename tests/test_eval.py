@@ -126,11 +126,13 @@ def test_demo_runs_and_reports(tmp_path, monkeypatch, capsys):
     c = result["counts"]
     assert c["TP"] + c["FN"] + c["TN"] + c["FP"] == 4
     assert c["FP"] == 0
+    assert result["identifiable"] <= result["queries"]["positive"] - result["queries"]["ambiguous"]
+    assert all(o["identifiable"] for o in result["outcomes"] if o["label"] == "TP")
     assert {"compile", "map", "queries", "relocalize"} <= set(steps)
     assert capsys.readouterr().err.count("numba: compiling") == 1
     assert result["latency_ms"]["relocalization_total"]["median"] > 0
     text = format_demo(result)
-    assert "TP" in text and "relocalization_total" in text
+    assert "TP" in text and "R_id[%]" in text and "relocalization_total" in text
     json.loads(json.dumps(result))  # JSON-ready
     assert np.isfinite(result["phases_s"]["total_s"])
 
