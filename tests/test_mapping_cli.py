@@ -80,6 +80,34 @@ def test_locate_writes_one_line_per_query(office_sequence, tmp_path):
     assert sum(x["status"] == "relocalized" for x in lines) >= 2
 
 
+def test_locate_checks_each_query_at_the_sequences_own_pose(office_sequence, tmp_path, capsys):
+    """--check-poses: the answer's error against the sequence's pose, and whether that pose is identifiable (the map
+    confirms it as locate would accept it); every answered view here is."""
+    map_path = tmp_path / "m.npz"
+    assert main(["map", "build", str(office_sequence), "-o", str(map_path), "--quiet"]) == 0
+    capsys.readouterr()
+    results = tmp_path / "results.jsonl"
+    assert main(["locate", "--map", str(map_path), str(office_sequence), "--frames", "120:240", "--every", "30",
+                 "--window", "20", "--stride", "3", "--out", str(results), "--check-poses", "--quiet"]) == 0
+    lines = [json.loads(x) for x in results.read_text().splitlines()]
+    from drivers.readers import open_sequence
+
+    seq = open_sequence(office_sequence)
+    for x in lines:
+        truth = x["truth"]
+        assert isinstance(truth["identifiable"], bool) and (truth["identifiable"] or truth["reason"])
+        if x["status"] == "relocalized":
+            t_err, r_err = pose_error(np.array(x["T_map_cam"]), seq.T_world_cam[x["frame"]])
+            assert truth["translation_error_m"] == pytest.approx(t_err, abs=1e-6) and t_err < 0.1
+            assert truth["rotation_error_deg"] == pytest.approx(r_err, abs=1e-6)
+            assert truth["identifiable"]
+        else:
+            assert truth["translation_error_m"] is None
+    n = sum(x["truth"]["identifiable"] for x in lines)
+    assert n >= sum(x["status"] == "relocalized" for x in lines) >= 2
+    assert f"{n} identifiable at the sequence's poses" in capsys.readouterr().out
+
+
 def test_frame_ranges_that_select_nothing_are_errors():
     import click
 

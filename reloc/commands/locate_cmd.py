@@ -21,8 +21,11 @@ from reloc.commands.map_cmd import SOURCES, config_sections, parse_frames, seque
               help="Planes from extraction, or the simulator's ground truth (sequences written by reloc sim).")
 @click.option("--config", "config_path", type=click.Path(exists=True, dir_okay=False), default=None,
               help="YAML config (defaults otherwise).")
+@click.option("--check-poses", is_flag=True,
+              help="Also check each query at the sequence's own pose (ground truth in the map's frame): the error "
+                   "of the answer, and whether that pose is confirmed as locate would accept it.")
 @click.option("--quiet", is_flag=True, help="No progress bar.")
-def locate(seq, map_path, out_path, frames_spec, window, stride, every, source, config_path, quiet):
+def locate(seq, map_path, out_path, frames_spec, window, stride, every, source, config_path, check_poses, quiet):
     """Relocalize frames of SEQ in the map: one JSON line per query frame.
 
     Each query is a submap of the last --window frames (--stride apart) ending at the query frame, fused with the
@@ -32,6 +35,12 @@ def locate(seq, map_path, out_path, frames_spec, window, stride, every, source, 
     many of them the odometry check left out, the counts of every stage and the milliseconds of every stage
     (extraction and submap building included).
     A frame that cannot be read or processed gets a line with status "error"; the others go on.
+
+    With --check-poses (for a sequence whose poses are ground truth in the map's frame, as when the map was built
+    from the same or a co-registered run), a line also holds "truth": the answer's translation and rotation error
+    against the query frame's pose, and whether that pose is identifiable (``Relocalizer.confirm``: locate with it
+    as the only hypothesis accepts it, refined within 0.25 m and 5 deg) or the reason it is not: a view no search
+    could answer under the acceptance rules.
     """
     import json
     import time
@@ -44,8 +53,10 @@ def locate(seq, map_path, out_path, frames_spec, window, stride, every, source, 
     from reloc._numba import warm_up
     from reloc.atomic import atomic_write_text
     from reloc.config import load_config
+    from reloc.evaluation.metrics import TP_MAX_ROTATION_DEG, TP_MAX_TRANSLATION_M
     from reloc.mapping import MappingParams, build_submap, load_map
     from reloc.matching import MatchingParams, Relocalizer
+    from reloc.transforms import pose_error
 
     cfg = sequence_config(load_config(config_path), seq, quiet)
     mapping = MappingParams.from_config(cfg)
@@ -67,7 +78,25 @@ def locate(seq, map_path, out_path, frames_spec, window, stride, every, source, 
                 del cache[old]
         return cache[i]
 
+    def truth_of(submap, res, T_true) -> dict:
+        """The answer against the sequence's pose, and whether that pose is confirmed."""
+        if T_true is None:
+            return {"pose": None}
+        out = {"translation_error_m": None, "rotation_error_deg": None}
+        if res.relocalized:
+            t_err, r_err = pose_error(res.T_map_cam, T_true)
+            out.update(translation_error_m=round(t_err, 6), rotation_error_deg=round(r_err, 6))
+        check = reloc.confirm(submap, T_true)
+        why = check.reason
+        if check.relocalized:
+            t_err, r_err = pose_error(check.T_map_cam, T_true)
+            if t_err > TP_MAX_TRANSLATION_M or r_err > TP_MAX_ROTATION_DEG:
+                why = f"refined pose {t_err:.2f} m, {r_err:.1f} deg off"
+        out.update(identifiable=not why, reason=why)
+        return out
+
     lines, counts = [], {"relocalized": 0, "rejected": 0, "error": 0}
+    identifiable = 0
     for q in tqdm(queries, desc="locate", unit="query", disable=quiet, leave=False):
         record = {"frame": int(q), "stamp_ns": int(sequence.stamps_ns[q])}
         try:
@@ -91,6 +120,9 @@ def locate(seq, map_path, out_path, frames_spec, window, stride, every, source, 
                 timings_ms={"extraction": round(float(items[-1][2]), 4), "submap": round(submap_ms, 4),
                             **d["timings_ms"]},
             )
+            if check_poses:
+                record["truth"] = truth_of(submap, res, items[-1][1])
+                identifiable += int(bool(record["truth"].get("identifiable")))
             counts[res.status] += 1
         except (ValueError, OSError) as exc:
             record.update(status="error", reason=str(exc), T_map_cam=None, score=None, matched_planes=0)
@@ -101,5 +133,6 @@ def locate(seq, map_path, out_path, frames_spec, window, stride, every, source, 
     times = [json.loads(x).get("timings_ms", {}).get("total") for x in lines]
     times = [t for t in times if t is not None]
     med = f", median {np.median(times):.1f} ms per relocalization" if times else ""
+    ident = f"; {identifiable} identifiable at the sequence's poses" if check_poses else ""
     click.echo(f"{out_path}: {len(lines)} queries: {counts['relocalized']} relocalized, {counts['rejected']} rejected, "
-               f"{counts['error']} errors{med}")
+               f"{counts['error']} errors{med}{ident}")
