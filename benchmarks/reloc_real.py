@@ -137,29 +137,12 @@ def matched_at_truth(reloc, submap, T_map_cam) -> int:
     return int(v.n_matched[0])
 
 
-def identifiable(reloc, submap, T_map_cam) -> tuple[bool, str]:
-    """Whether the map confirms the submap's true pose as ``locate`` would accept it (``Relocalizer.confirm``, its
-    refined pose within the TP thresholds), and the reason when it does not."""
-    from reloc.evaluation.metrics import TP_MAX_ROTATION_DEG, TP_MAX_TRANSLATION_M
-    from reloc.transforms import pose_error
-
-    if len(submap) == 0:
-        return False, "no submap planes"
-    check = reloc.confirm(submap, T_map_cam)
-    if not check.relocalized:
-        return False, check.reason
-    t_err, r_err = pose_error(check.T_map_cam, T_map_cam)
-    if t_err > TP_MAX_TRANSLATION_M or r_err > TP_MAX_ROTATION_DEG:
-        return False, f"refined true pose {t_err:.2f} m, {r_err:.1f} deg off"
-    return True, ""
-
-
 def run(root: Path, windows=(1, 10), extraction=None, cases=CASES, variants=None) -> dict:
     """Every case, window and method: per-query records and TP / TN / FP / FN per (case, window, method); planes
     extracted with ``extraction`` (ExtractionParams, None = the defaults). ``variants``: more methods, name ->
     MatchingParams, on the same maps and submaps."""
     from reloc._numba import warm_up
-    from reloc.evaluation.metrics import classify
+    from reloc.evaluation.metrics import classify, identifiable
     from reloc.matching import MatchingParams, Relocalizer
     from reloc.transforms import pose_error
     from reloc_accuracy import paper_settings

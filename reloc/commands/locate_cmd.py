@@ -53,7 +53,7 @@ def locate(seq, map_path, out_path, frames_spec, window, stride, every, source, 
     from reloc._numba import warm_up
     from reloc.atomic import atomic_write_text
     from reloc.config import load_config
-    from reloc.evaluation.metrics import TP_MAX_ROTATION_DEG, TP_MAX_TRANSLATION_M
+    from reloc.evaluation.metrics import identifiable as identifiable_at
     from reloc.mapping import MappingParams, build_submap, load_map
     from reloc.matching import MatchingParams, Relocalizer
     from reloc.transforms import pose_error
@@ -86,13 +86,8 @@ def locate(seq, map_path, out_path, frames_spec, window, stride, every, source, 
         if res.relocalized:
             t_err, r_err = pose_error(res.T_map_cam, T_true)
             out.update(translation_error_m=round(t_err, 6), rotation_error_deg=round(r_err, 6))
-        check = reloc.confirm(submap, T_true)
-        why = check.reason
-        if check.relocalized:
-            t_err, r_err = pose_error(check.T_map_cam, T_true)
-            if t_err > TP_MAX_TRANSLATION_M or r_err > TP_MAX_ROTATION_DEG:
-                why = f"refined pose {t_err:.2f} m, {r_err:.1f} deg off"
-        out.update(identifiable=not why, reason=why)
+        ident, why = identifiable_at(reloc, submap, T_true)
+        out.update(identifiable=ident, reason=why)
         return out
 
     lines, counts = [], {"relocalized": 0, "rejected": 0, "error": 0}

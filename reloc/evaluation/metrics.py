@@ -27,7 +27,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-__all__ = ["Outcome", "classify", "Summary", "summarize", "format_table", "TP_MAX_TRANSLATION_M",
+__all__ = ["Outcome", "classify", "identifiable", "Summary", "summarize", "format_table", "TP_MAX_TRANSLATION_M",
            "TP_MAX_ROTATION_DEG"]
 
 TP_MAX_TRANSLATION_M = 0.25
@@ -75,6 +75,23 @@ def classify(positive: bool, ambiguous: bool, relocalized: bool, errors: tuple[f
         return "FN"
     t_err, r_err = errors
     return "TP" if t_err <= TP_MAX_TRANSLATION_M and r_err <= TP_MAX_ROTATION_DEG else "FP"
+
+
+def identifiable(relocalizer, submap, T_true) -> tuple[bool, str]:
+    """Whether the true pose ``T_true`` (4, 4, map frame) of a positive query is identifiable: ``relocalizer`` (a
+    :class:`reloc.matching.Relocalizer`) confirms it (:meth:`~reloc.matching.Relocalizer.confirm`) and its refined
+    pose is within the TP thresholds of the truth. Returns ``(identifiable, reason)``, the reason empty when it is."""
+    from reloc.transforms import pose_error
+
+    if len(submap) == 0:
+        return False, "no submap planes"
+    check = relocalizer.confirm(submap, T_true)
+    if not check.relocalized:
+        return False, check.reason
+    t_err, r_err = pose_error(check.T_map_cam, T_true)
+    if t_err > TP_MAX_TRANSLATION_M or r_err > TP_MAX_ROTATION_DEG:
+        return False, f"refined true pose {t_err:.2f} m, {r_err:.1f} deg off"
+    return True, ""
 
 
 @dataclass(frozen=True)

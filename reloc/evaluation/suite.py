@@ -21,7 +21,7 @@ from typing import Callable
 import numpy as np
 
 from reloc.evaluation.ambiguity import is_ambiguous
-from reloc.evaluation.metrics import TP_MAX_ROTATION_DEG, TP_MAX_TRANSLATION_M, Outcome, Summary, classify, summarize
+from reloc.evaluation.metrics import Outcome, Summary, classify, identifiable, summarize
 from reloc.mapping import MappingParams, PlaneMap, build_map, build_submap
 from reloc.matching import MatchingParams, Relocalizer, ablation_params, scaled_to_sensor
 from reloc.planeset import PlaneSet
@@ -194,22 +194,16 @@ def evaluate_queries(relocalizer: Relocalizer, queries: list[Query], scene_name:
         positive = q.scene == scene_name
         errors = pose_error(res.T_map_cam, q.T_world_cam) if (positive and res.relocalized) else None
         label = classify(positive, q.ambiguous and positive, res.relocalized, errors)
-        identifiable, why = None, ""
+        ident, why = None, ""
         if positive and not q.ambiguous:
-            check = relocalizer.confirm(q.submap, q.T_world_cam)
-            why = check.reason
-            if check.relocalized:
-                e = pose_error(check.T_map_cam, q.T_world_cam)
-                if e[0] > TP_MAX_TRANSLATION_M or e[1] > TP_MAX_ROTATION_DEG:
-                    why = f"refined true pose {e[0]:.2f} m, {e[1]:.1f} deg off"
-            identifiable = not why
+            ident, why = identifiable(relocalizer, q.submap, q.T_world_cam)
         out.append(Outcome(
             scene=scene_name, query=q.name, positive=positive, ambiguous=q.ambiguous and positive,
             status=res.status, reason=res.reason, label=label,
             translation_error_m=errors[0] if errors else math.nan, rotation_error_deg=errors[1] if errors else math.nan,
             total_ms=res.timings_ms.get("total", math.nan),
             timings_ms={**{k: v for k, v in res.timings_ms.items() if k != "total"}, **q.timings_ms},
-            counts=res.counts, identifiable=identifiable, identifiable_reason=why,
+            counts=res.counts, identifiable=ident, identifiable_reason=why,
         ))
         if progress is not None:
             progress(1)

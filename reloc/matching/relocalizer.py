@@ -35,7 +35,7 @@ from reloc.matching.selection import (
 )
 from reloc.matching.transform import rotation_from_normal_pairs, translation_from_offsets
 from reloc.planeset import PlaneSet
-from reloc.transforms import transform_from_rotation_translation
+from reloc.transforms import check_transform, transform_from_rotation_translation
 
 __all__ = ["RelocResult", "Relocalizer", "Verification", "locate", "support_per_direction", "STAGES"]
 
@@ -610,13 +610,7 @@ class Relocalizer:
         if not isinstance(submap, PlaneSet):
             raise ValueError(f"submap: expected a PlaneSet, got {type(submap).__name__}")
         submap.check_geometry("submap")
-        T0 = np.asarray(T_map_cam, dtype=np.float64)
-        if T0.shape != (4, 4) or not np.all(np.isfinite(T0)):
-            raise ValueError(f"T_map_cam: expected a finite 4x4 pose, got shape {T0.shape}")
-        R0 = T0[:3, :3]
-        if not np.allclose(R0.T @ R0, np.eye(3), atol=1e-6) or np.linalg.det(R0) <= 0 or not np.allclose(
-                T0[3], [0.0, 0.0, 0.0, 1.0]):
-            raise ValueError("T_map_cam: expected a rigid transform (orthonormal rotation, last row 0 0 0 1)")
+        T0 = check_transform(T_map_cam, "T_map_cam")
         p = self.params
         t_start = time.perf_counter()
         timings = {s: 0.0 for s in (*STAGES, *SUBSTAGES)}
