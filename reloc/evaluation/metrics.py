@@ -83,8 +83,6 @@ def identifiable(relocalizer, submap, T_true) -> tuple[bool, str]:
     pose is within the TP thresholds of the truth. Returns ``(identifiable, reason)``, the reason empty when it is."""
     from reloc.transforms import pose_error
 
-    if len(submap) == 0:
-        return False, "no submap planes"
     check = relocalizer.confirm(submap, T_true)
     if not check.relocalized:
         return False, check.reason

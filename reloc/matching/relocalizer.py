@@ -527,39 +527,24 @@ class Relocalizer:
     def _conclude(self, used, order, vs_ptr, vs_pts, hyps, tightened: bool, decision: Decision, min_matched: int,
                   counts: dict, timings: dict) -> RelocResult:
         """The accepted ``decision``'s winner (a hypothesis of ``hyps``; ``tightened``: of the decision over refined
-        poses) refined over all its matched planes, then verified and refined again: the result."""
+        poses) refined by least squares over all its matched planes (``refine_iterations`` times, each refined pose
+        verified again), then held to the final tolerances, to the explained fraction and to the support along its
+        weakest direction: the result, relocalized or rejected with the reason."""
+        p = self.params
         t0 = time.perf_counter()
         b = decision.best
+        cand_row = hyps.cand[b: b + 1]
         match_row, proj_row = hyps.match[b], hyps.proj[b]
         explained = float(hyps.explained[b])
         T = transform_from_rotation_translation(hyps.R[b], hyps.t[b])
-        refined = self.params.refine_iterations == 0
+        refined, why = p.refine_iterations == 0, ""
         if tightened:
             # Decided over refined poses: the winner's pose is already a least-squares pose; refine on from its
             # matches at the final tolerances (its sharp matches alone may not fix it, e.g. along a corridor).
-            v = self.verify(used, vs_ptr, vs_pts, T[None, :3, :3], T[None, :3, 3], hyps.cand[b: b + 1],
-                            require_triplet=False, tight=True)
+            v = self.verify(used, vs_ptr, vs_pts, T[None, :3, :3], T[None, :3, 3], cand_row, require_triplet=False,
+                            tight=True)
             match_row, proj_row, explained = v.match[0], v.proj[0], float(v.explained[0])
             refined = bool(v.passed[0] and hyps.refined[b])
-        T, match_row, explained, why = self._final_checks(used, vs_ptr, vs_pts, T, hyps.cand[b: b + 1], match_row,
-                                                          proj_row, explained, refined, min_matched)
-        timings["refine"] = (time.perf_counter() - t0) * 1e3
-        if why:
-            return _rejected(why, counts, timings)
-        js = np.flatnonzero(match_row >= 0)
-        matched = np.stack([order[js], match_row[js].astype(np.int64)], axis=1)
-        return RelocResult(RELOCALIZED, "", T, decision.score, ratio(decision.score, decision.runner_up_score),
-                           matched, explained, counts, timings)
-
-    def _final_checks(self, used, vs_ptr, vs_pts, T, cand_row, match_row, proj_row, explained, refined: bool,
-                      min_matched: int):
-        """The last steps of an accepted pose ``T`` (4, 4) with its matches ``match_row`` / ``proj_row``: refined by
-        least squares over its matched planes (``refine_iterations`` times, each refined pose verified again), then
-        held to the final tolerances, to the explained fraction and to the support along its weakest direction.
-        ``refined`` says whether ``T`` is already a least-squares pose. Returns ``(T, match_row, explained, reason)``,
-        ``reason`` empty when the pose is accepted."""
-        p = self.params
-        why = ""
         for _ in range(p.refine_iterations):
             T_new = self.refine(used, match_row, proj_row)
             if T_new is None:
@@ -576,20 +561,25 @@ class Relocalizer:
             # The winner's own pose comes from three planes and holds only within the loose search tolerances: a
             # pose 0.14 m and 2.5 deg off matched all five planes of a soak submap whose least-squares pose (2 cm
             # off) no longer matched its smallest plane. A pose the matched planes do not confirm is not accepted.
-            return T, match_row, explained, f"refined pose does not verify: {why}"
+            timings["refine"] = (time.perf_counter() - t0) * 1e3
+            return _rejected(f"refined pose does not verify: {why}", counts, timings)
         # The refined pose must hold at tight tolerances: a true pose is precise to a centimetre, while a look-alike
         # (a desk and monitor in another room's corner) matches only within the loose search tolerances.
         v = self.verify(used, vs_ptr, vs_pts, T[None, :3, :3], T[None, :3, 3], cand_row, require_triplet=False,
                         tight=True)
+        timings["refine"] = (time.perf_counter() - t0) * 1e3
         if not self._holds(v, min_matched):
-            return T, match_row, explained, (f"pose does not hold at tight tolerances: {int(v.n_matched[0])} planes, "
-                                             f"{v.explained[0]:.2f} of the submap")
+            return _rejected(f"pose does not hold at tight tolerances: {int(v.n_matched[0])} planes, "
+                             f"{v.explained[0]:.2f} of the submap", counts, timings)
         match_row, explained = v.match[0], float(v.explained[0])
         weakest = support_per_direction(used, match_row, p.min_counted_area_m2) if p.scene_uniqueness else math.inf
         if weakest < p.min_direction_support_m2:
-            return T, match_row, explained, (f"pose weakly constrained: {weakest:.2f} m^2 of matched planes along "
-                                             f"its weakest direction (needs {p.min_direction_support_m2})")
-        return T, match_row, explained, ""
+            return _rejected(f"pose weakly constrained: {weakest:.2f} m^2 of matched planes along its weakest "
+                             f"direction (needs {p.min_direction_support_m2})", counts, timings)
+        js = np.flatnonzero(match_row >= 0)
+        matched = np.stack([order[js], match_row[js].astype(np.int64)], axis=1)
+        return RelocResult(RELOCALIZED, "", T, decision.score, ratio(decision.score, decision.runner_up_score),
+                           matched, explained, counts, timings)
 
     def _holds(self, v: Verification, min_matched: int) -> bool:
         """Whether the single pose verified in ``v`` passes, explains enough and matches ``min_matched`` planes."""
