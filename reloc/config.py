@@ -460,6 +460,17 @@ class EvaluationConfig(_Section):
         description="In the ambiguity test a rival pose's planes that land where the map knows nothing count as if "
         "they matched: an incomplete map must not make a twin look worse than the pose it covers well.",
     )
+    unrefined_rivals: bool = Field(
+        True,
+        description="With tight_decision, a mode with no least-squares pose (its planes disagree by more than the "
+        "refinement tolerances) is not decided on at its raw pose: when it matched about as well as the winner, "
+        "the query is rejected as ambiguous.",
+    )
+    unrefined_rival_margin: float = Field(
+        0.5, ge=0,
+        description="With unrefined_rivals, how much less (matched planes plus explained fraction, as raw "
+        "hypotheses) such a mode may have matched than the winner and still make the query ambiguous.",
+    )
     rival_unknown_weight: float = Field(
         0.75, ge=0, le=1,
         description="With optimistic_rivals, how much of a match an unknown plane of a rival counts for (needs a "

@@ -73,6 +73,8 @@ class MatchingParams:
     decision_modes: int = 6
     decision_conflict_m: float = 0.05
     optimistic_rivals: bool = True
+    unrefined_rivals: bool = True
+    unrefined_rival_margin: float = 0.5
     rival_unknown_weight: float = 0.75
     evidence_area_m2: float = 1.0
     distinct_translation_m: float = 0.25
@@ -194,6 +196,8 @@ class MatchingParams:
             decision_modes=e.decision_modes,
             decision_conflict_m=e.decision_conflict_m,
             optimistic_rivals=e.optimistic_rivals,
+            unrefined_rivals=e.unrefined_rivals,
+            unrefined_rival_margin=e.unrefined_rival_margin,
             rival_unknown_weight=e.rival_unknown_weight,
             evidence_area_m2=e.evidence_area_m2,
             distinct_translation_m=e.distinct_translation_m,

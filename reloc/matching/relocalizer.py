@@ -151,6 +151,9 @@ class _Hypotheses:
         self.explained = np.zeros(0)
         self.unknown = np.zeros(0)
         self.refined: np.ndarray | None = None  # per hypothesis, set for the refined modes of the decision
+        # Also set there: the raw hypothesis each mode comes from, and the modes with no least-squares pose.
+        self.leader: np.ndarray | None = None
+        self.unrefined: np.ndarray | None = None
 
     def add(self, R, t, cand, v: Verification) -> None:
         keep = v.passed
@@ -402,6 +405,8 @@ class Relocalizer:
         out = _Hypotheses(len(used))
         out.add(R, t, cand, v)
         out.refined = refined[v.passed]  # whose pose is a least-squares pose (not the raw triplet's)
+        out.leader = leaders[v.passed]
+        out.unrefined = leaders[~refined]  # whether or not their raw pose held
         return out
 
     def _judge(self, hyps, used: PlaneSet, vs_ptr, vs_pts, min_matched: int, timings: dict):
@@ -415,7 +420,32 @@ class Relocalizer:
         timings["decide.tighten"] += (time.perf_counter() - t0) * 1e3
         if not len(tight):
             return Decision(False, "no refined pose holds at the final tolerances", -1, 0.0, 0.0, 0), tight
-        return self._decide(tight, used, min_matched, timings), tight
+        decision = self._decide(tight, used, min_matched, timings)
+        if decision.accepted and self.params.unrefined_rivals:
+            decision = self._unrefined_rival(hyps, tight, decision)
+        return decision, tight
+
+    def _unrefined_rival(self, hyps, tight, decision: Decision) -> Decision:
+        """``decision`` (accepted, over the refined modes ``tight`` of ``hyps``), or a rejection when a mode with no
+        least-squares pose matched about as well as the winner (within ``unrefined_rival_margin`` of its matched
+        planes plus explained fraction, as raw hypotheses).
+
+        Such a mode is held to the decision's offsets at its raw triplet pose, which may be a degree off (stereo's
+        planes that disagree by more than the refinement tolerances): it then loses its evidence not because it is
+        wrong but because it could not be refined, and the decision cannot tell it from the winner. A stereo corridor
+        view whose true pose (7 planes, all of the submap) had no least-squares pose was answered turned end for
+        end (6 planes, 5.8 m off) before this test.
+        """
+        quality = hyps.n_matched.astype(np.float64) + hyps.explained
+        rivals = tight.unrefined[tight.unrefined != tight.leader[decision.best]]
+        if not len(rivals):
+            return decision
+        a = rivals[np.argmax(quality[rivals])]
+        if quality[a] < quality[tight.leader[decision.best]] - self.params.unrefined_rival_margin:
+            return decision
+        return Decision(False, f"ambiguous: a pose matching {int(hyps.n_matched[a])} planes and "
+                        f"{hyps.explained[a]:.2f} of the submap, as well as the winner, has no least-squares pose to "
+                        "be decided on", -1, decision.score, decision.runner_up_score, decision.n_modes)
 
     def _decide(self, hyps, used: PlaneSet, min_matched: int, timings: dict) -> Decision:
         """The decision over every hypothesis so far; its weights and density times go to ``timings``."""
