@@ -25,7 +25,7 @@ import numpy as np
 from reloc.matching import _kernels as K
 from reloc.matching.index import SURFACE_CELL_M, MapIndex, build_index, horizontal_facing, with_dense_extents
 from reloc.matching.params import MatchingParams
-from reloc.matching.scoring import Decision, decide, explains_enough, ratio
+from reloc.matching.scoring import Decision, decide, explains_enough, match_quality, ratio
 from reloc.matching.selection import (
     candidate_triplets,
     gap_bounds,
@@ -380,8 +380,7 @@ class Relocalizer:
         pose stands out where the raw triplet poses tie.
         """
         p = self.params
-        quality = hyps.n_matched.astype(np.float64) + hyps.explained
-        order = np.argsort(-quality, kind="stable").astype(np.int64)
+        order = np.argsort(-match_quality(hyps.n_matched, hyps.explained), kind="stable").astype(np.int64)
         group = np.empty(len(hyps), np.int32)
         leaders = K.group_poses(np.ascontiguousarray(hyps.R), np.ascontiguousarray(hyps.t), order,
                                 p.distinct_translation_m, p.distinct_rotation_rad, group)
@@ -411,7 +410,8 @@ class Relocalizer:
 
     def _judge(self, hyps, used: PlaneSet, vs_ptr, vs_pts, min_matched: int, timings: dict):
         """The decision over ``hyps`` and the hypotheses it indexes: with ``tight_decision``, a pose the raw
-        hypotheses single out or find ambiguous is decided again over the refined modes (:meth:`_tightened`)."""
+        hypotheses single out or find ambiguous is decided again over the refined modes (:meth:`_tightened`), the
+        modes that could not be refined kept as rivals (:meth:`_unrefined_rival`)."""
         decision = self._decide(hyps, used, min_matched, timings)
         if not self.params.tight_decision or decision.best < 0:
             return decision, hyps
@@ -436,7 +436,7 @@ class Relocalizer:
         view whose true pose (7 planes, all of the submap) had no least-squares pose was answered turned end for
         end (6 planes, 5.8 m off) before this test.
         """
-        quality = hyps.n_matched.astype(np.float64) + hyps.explained
+        quality = match_quality(hyps.n_matched, hyps.explained)
         rivals = tight.unrefined[tight.unrefined != tight.leader[decision.best]]
         if not len(rivals):
             return decision

@@ -22,7 +22,9 @@ import numpy as np
 from reloc.matching import _kernels as K
 from reloc.matching.params import MatchingParams
 
-__all__ = ["Decision", "frequency_weights", "pose_density", "decide", "explains_enough", "in_conflict"]
+__all__ = [
+    "Decision", "frequency_weights", "pose_density", "decide", "explains_enough", "in_conflict", "match_quality",
+]
 
 
 @dataclass(frozen=True)
@@ -152,7 +154,7 @@ def decide(
     H = R.shape[0]
     if H == 0:
         return Decision(False, "no hypothesis passed verification", -1, 0.0, 0.0, 0)
-    quality = n_matched.astype(np.float64) + explained
+    quality = match_quality(n_matched, explained)
     t0 = time.perf_counter()
     w, group, leaders, plane_w = frequency_weights(R, t, match, overlap, quality, params, state, areas)
     t1 = time.perf_counter()
@@ -224,6 +226,12 @@ def decide(
             best, score, runner, n_modes,
         )
     return Decision(True, "", best, score, runner, n_modes)
+
+
+def match_quality(n_matched: np.ndarray, explained: np.ndarray) -> np.ndarray:
+    """How well each hypothesis matched, to rank hypotheses and modes: its matched planes plus its explained
+    fraction."""
+    return np.asarray(n_matched).astype(np.float64) + explained
 
 
 def ratio(score: float, runner_up: float) -> float:
