@@ -150,10 +150,14 @@ class _Hypotheses:
         self.n_matched = np.zeros(0, np.int32)
         self.explained = np.zeros(0)
         self.unknown = np.zeros(0)
-        self.refined: np.ndarray | None = None  # per hypothesis, set for the refined modes of the decision
-        # Also set there: the raw hypothesis each mode comes from, and the modes with no least-squares pose.
+        # Set for the modes of the decision over refined poses: the raw hypothesis each comes from (per mode), and
+        # the raw hypotheses of the modes with no least-squares pose (whether or not their raw pose held).
         self.leader: np.ndarray | None = None
         self.unrefined: np.ndarray | None = None
+
+    def is_refined(self, i: int) -> bool:
+        """Whether mode ``i`` of a decision over refined poses has a least-squares pose (not the raw triplet's)."""
+        return bool(self.leader[i] not in self.unrefined)
 
     def add(self, R, t, cand, v: Verification) -> None:
         keep = v.passed
@@ -403,9 +407,8 @@ class Relocalizer:
             self.mark_hidden(used, vs_ptr, vs_pts, R, t, v.state)
         out = _Hypotheses(len(used))
         out.add(R, t, cand, v)
-        out.refined = refined[v.passed]  # whose pose is a least-squares pose (not the raw triplet's)
         out.leader = leaders[v.passed]
-        out.unrefined = leaders[~refined]  # whether or not their raw pose held
+        out.unrefined = leaders[~refined]
         return out
 
     def _judge(self, hyps, used: PlaneSet, vs_ptr, vs_pts, min_matched: int, timings: dict):
@@ -574,7 +577,7 @@ class Relocalizer:
             v = self.verify(used, vs_ptr, vs_pts, T[None, :3, :3], T[None, :3, 3], cand_row, require_triplet=False,
                             tight=True)
             match_row, proj_row, explained = v.match[0], v.proj[0], float(v.explained[0])
-            refined = bool(v.passed[0] and hyps.refined[b])
+            refined = bool(v.passed[0]) and hyps.is_refined(b)
         for _ in range(p.refine_iterations):
             T_new = self.refine(used, match_row, proj_row)
             if T_new is None:
