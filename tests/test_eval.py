@@ -180,7 +180,8 @@ def test_eval_command_runs_a_replicate_on_other_seeds(tmp_path):
 def test_eval_command_saves_a_prepared_suite_and_evaluates_it_again(tmp_path):
     """``reloc eval --save-prepared DIR`` then ``--prepared DIR``: the same outcomes without building anything; a
     config whose matching differs is evaluated on the saved suite, one whose extraction differs is refused with the
-    parameter named, and ``--ablation`` does not take a prepared suite."""
+    parameter named, ``--ablation`` does not take a prepared suite, and ``--explain QUERY`` gives one query's
+    account."""
     from click.testing import CliRunner
 
     from reloc.cli import cli
@@ -215,3 +216,10 @@ def test_eval_command_saves_a_prepared_suite_and_evaluates_it_again(tmp_path):
     assert "holds another suite" in run("--prepared", str(suite), "--query-seed", "7", code=2).output
     assert "no such directory" in run("--prepared", str(tmp_path / "nowhere"), code=2).output
     assert "without --ablation" in run("--ablation", "--prepared", str(suite), code=2).output
+    # --explain: the account of one query of the saved suite, its result the table's.
+    tp = next(o for o in first if o["label"] == "TP")
+    told = run("--prepared", str(suite), "--explain", tp["query"]).output
+    assert f"== {tp['query']} in the map of living_room" in told
+    assert "result: relocalized" in told and "winner (nearest the truth)" in told
+    assert "no query 'nope' in this suite" in run("--prepared", str(suite), "--explain", "nope", code=2).output
+    assert "--explain-map goes with --explain" in run("--explain-map", "office", code=2).output

@@ -289,6 +289,59 @@ def test_identical_rooms_and_symmetric_room_are_rejected_as_ambiguous():
     assert ambiguous >= 3
 
 
+def test_a_trace_explains_the_result_without_changing_it(living_relocalizer):
+    # locate(trace=...) hands over what it decided on, and explain_query turns that into text; neither changes the
+    # result. The winner of the decision over refined poses is the pose the result refines once more.
+    from reloc.evaluation.explain import explain_query
+
+    rng = np.random.default_rng(5)
+    T = look_at((5, 4, 1.5), (1, 1, 0.5))
+    sub = view_planes(furnished_room("living"), T, point_noise_m=0.005, normal_noise_deg=0.3, offset_noise_m=0.005,
+                      rng=rng)
+    plain = living_relocalizer.locate(sub)
+    trace: dict = {}
+    traced = living_relocalizer.locate(sub, trace=trace)
+    assert plain.relocalized and traced.relocalized
+    np.testing.assert_array_equal(traced.T_map_cam, plain.T_map_cam)
+    judged, decision = trace["judged"], trace["decision"]
+    assert trace["tight"] and decision.accepted and trace["raw_decision"].best >= 0
+    assert len(trace["used"]) == plain.counts["planes_used"]
+    winner = transform_from_rotation_translation(judged.R[decision.best], judged.t[decision.best])
+    moved = pose_error(winner, plain.T_map_cam)
+    assert moved[0] < 0.01 and moved[1] < 0.2
+    text = explain_query(living_relocalizer, sub, T)
+    lines = text.splitlines()
+    assert lines[0] == "result: relocalized"
+    assert f"pose error {100 * pose_error(plain.T_map_cam, T)[0]:.1f} cm" in lines[1]
+    rows = [ln.split() for ln in lines if ln.endswith("winner (nearest the truth)")]
+    assert len(rows) == 1 and float(rows[0][1]) < 0.05 and int(rows[0][3]) == plain.n_matched
+    assert lines[-1].startswith("the true pose: confirmed by the map")
+
+
+def test_an_explained_twin_room_view_shows_both_rooms():
+    # A view of one of two identical rooms 7 m apart is rejected as ambiguous; the explanation lists the true pose
+    # and the twin, 7 m from it, among the poses weighed.
+    from reloc.evaluation.explain import explain_query
+
+    rng = np.random.default_rng(8)
+    two_rooms = furnished_room("meeting") + furnished_room("meeting", origin=(7.0, 0.0))
+    reloc = Relocalizer(scene_planes(two_rooms), MatchingParams())
+    for T in views(rng, 10):
+        sub = view_planes(furnished_room("meeting"), T, point_noise_m=0.005, rng=rng)
+        text = explain_query(reloc, sub, T)
+        if "(ambiguous" in text.splitlines()[0]:
+            break
+    else:
+        pytest.fail("no view was rejected as ambiguous")
+    start = text.splitlines().index("   #  to truth [m, deg]  planes  explained  unknown  conflicts  least squares")
+    dist = []
+    for ln in text.splitlines()[start + 1:]:
+        if not re.match(r"\s+\d+\s+\d", ln):
+            break
+        dist.append(float(ln.split()[1]))
+    assert min(dist) < 0.05 and any(abs(d - 7.0) < 0.1 for d in dist), text
+
+
 def test_result_is_json_ready(living_relocalizer):
     sub = view_planes(furnished_room("living"), look_at((5, 4, 1.5), (1, 1, 0.5)))
     d = living_relocalizer.locate(sub).to_dict()

@@ -38,9 +38,15 @@ import click
               help="Load the maps and queries saved by --save-prepared instead of building them (seconds instead "
                    "of minutes): for trying matching settings of the config. The suite's options and every "
                    "extraction and fusion parameter must be those it was saved with.")
+@click.option("--explain", "explain", multiple=True, metavar="QUERY",
+              help="Instead of the table: why this query (as the outcomes name it, e.g. office/robot/3) came out as "
+                   "it did, in its own scene's map or in --explain-map's (repeatable; fast with --prepared).")
+@click.option("--explain-map", default=None, metavar="SCENE",
+              help="With --explain: the scene whose map the query is relocalized in (a negative, when not the "
+                   "query's own).")
 @click.option("--quiet", is_flag=True, help="No progress bar.")
 def eval_cmd(scenes, source, queries, negatives, window, map_frames, noise, query_seed, map_seed, ablation, quick,
-             config_path, json_path, save_prepared, prepared_dir, quiet):
+             config_path, json_path, save_prepared, prepared_dir, explain, explain_map, quiet):
     """Relocalization accuracy like the paper's Table 1 (per scene: TP, TN, FP, FN, P, R, median pose errors, time).
 
     Positives come from trajectories of each scene that were not used to build its map; negatives from the other
@@ -68,6 +74,10 @@ def eval_cmd(scenes, source, queries, negatives, window, map_frames, noise, quer
     from reloc.mapping import MappingParams
     from reloc.matching import ABLATIONS, MatchingParams
 
+    if ablation and explain:
+        raise click.UsageError("--explain works without --ablation only")
+    if explain_map and not explain:
+        raise click.UsageError("--explain-map goes with --explain")
     if ablation and (save_prepared or prepared_dir):
         raise click.UsageError("--save-prepared and --prepared work without --ablation only (its VR-NE and VR-NM "
                                "rows need maps and queries of their own)")
@@ -113,6 +123,11 @@ def eval_cmd(scenes, source, queries, negatives, window, map_frames, noise, quer
             loaded, meta = load_prepared(prepared_dir)
         except PreparedSuiteError as exc:
             raise click.BadParameter(str(exc), param_hint="--prepared") from None
+        if explain:
+            # Explaining a saved suite: its own scenes, sensor and seeds, whatever the suite options say; only the
+            # extraction and fusion settings of the config must be the ones it was built with.
+            spec = loaded.spec
+            params = built_with(spec, extraction, mapping)
         problems = mismatch(loaded, meta, spec, params)
         if problems:
             raise click.BadParameter(f"{prepared_dir} holds another suite than this command asks for: "
@@ -125,11 +140,15 @@ def eval_cmd(scenes, source, queries, negatives, window, map_frames, noise, quer
                 loaded = prepare_suite(spec, mapping, extraction=extraction, progress=progress)
             if save_prepared:
                 saved = save_prepared_suite(save_prepared, loaded, {"params": params, "program": "reloc eval"})
-            results = {"Ours": loaded.evaluate(matching, progress)}
+            if not explain:
+                results = {"Ours": loaded.evaluate(matching, progress)}
     finally:
         bar.close()
     if save_prepared:
         click.echo(f"saved the prepared suite to {saved.parent}")
+    if explain:
+        _explain(loaded, explain, explain_map, matching)
+        return
 
     out = {"spec": asdict(spec), "tables": {}, "outcomes": {}}
     if not ablation:
@@ -153,3 +172,25 @@ def eval_cmd(scenes, source, queries, negatives, window, map_frames, noise, quer
     if json_path:
         atomic_write_text(json_path, json.dumps(out, indent=1) + "\n")
         click.echo(f"wrote {json_path}")
+
+
+def _explain(prepared, names, map_scene, matching) -> None:
+    """Print :func:`reloc.evaluation.explain.explain_query` for each query of ``names`` in ``prepared``."""
+    from reloc.evaluation.explain import explain_query
+
+    if map_scene is not None and map_scene not in prepared.maps:
+        raise click.BadParameter(f"no map of {map_scene!r} in this suite; it has {', '.join(prepared.maps)}",
+                                 param_hint="--explain-map")
+    for name in names:
+        try:
+            q = prepared.find_query(name)
+        except ValueError as exc:
+            raise click.BadParameter(str(exc), param_hint="--explain") from None
+        scene = map_scene or q.scene
+        truth = q.T_world_cam if scene == q.scene else None
+        if truth is None:
+            how = " (a negative: any pose is wrong)"
+        else:
+            how = ", labelled ambiguous (any pose counts as wrong)" if q.ambiguous else ""
+        click.echo(f"== {name} in the map of {scene}{how}")
+        click.echo(explain_query(prepared.relocalizer(scene, matching), q.submap, truth))

@@ -232,18 +232,33 @@ class Prepared:
                  label: str = "") -> list[SceneResult]:
         """Relocalize every scene's positives and negatives with ``matching`` (its decision offsets scaled to the
         spec's sensor, as :meth:`MatchingParams.from_config` does for a live camera)."""
-        matching = matching or MatchingParams()
-        sensor = extraction_for_sensor(self.spec)
-        matching = scaled_to_sensor(matching, sensor.noise_model, sensor.noise_coeff)
         results = []
         for name in self.spec.scenes:
-            reloc = Relocalizer(self.maps[name], matching)
+            reloc = self.relocalizer(name, matching)
             qs = self.queries[name] + _negatives(self.queries, name, self.spec.negatives_per_scene)
             desc = f"{label} {name}".strip() if label else f"{name}: relocalize"
             step = None if progress is None else (lambda n, _d=desc: progress(n, _d))
             results.append(SceneResult(name, len(self.maps[name]), self.map_seconds[name],
                                        evaluate_queries(reloc, qs, name, step)))
         return results
+
+    def relocalizer(self, scene: str, matching: MatchingParams | None = None) -> Relocalizer:
+        """A relocalizer in the map of ``scene`` with ``matching`` (its decision offsets scaled to the spec's
+        sensor), as :meth:`evaluate` uses."""
+        sensor = extraction_for_sensor(self.spec)
+        matching = scaled_to_sensor(matching or MatchingParams(), sensor.noise_model, sensor.noise_coeff)
+        return Relocalizer(self.maps[scene], matching)
+
+    def find_query(self, name: str) -> Query:
+        """The query called ``name`` (``scene/kind/index``, as the outcomes name them); ValueError naming a few
+        others when there is none."""
+        for qs in self.queries.values():
+            for q in qs:
+                if q.name == name:
+                    return q
+        names = [q.name for qs in self.queries.values() for q in qs]
+        raise ValueError(f"no query {name!r} in this suite; its {len(names)} queries are named like "
+                         + ", ".join(names[:3]))
 
 
 def prepare_suite(spec: EvalSpec, mapping: MappingParams | None = None, *, extraction=None,

@@ -128,6 +128,10 @@ class Verification:
     free_frac: np.ndarray
 
 
+#: A word for each value of :attr:`Verification.state` (what a submap plane is under a pose; see there).
+PLANE_STATES = ("matched", "unknown", "conflict", "free", "small", "near", "hidden")
+
+
 def replace_passed(v: Verification, passed: np.ndarray) -> Verification:
     """``v`` with another ``passed`` mask."""
     return replace(v, passed=passed)
@@ -411,21 +415,28 @@ class Relocalizer:
         out.unrefined = leaders[~refined]
         return out
 
-    def _judge(self, hyps, used: PlaneSet, vs_ptr, vs_pts, min_matched: int, timings: dict):
+    def _judge(self, hyps, used: PlaneSet, vs_ptr, vs_pts, min_matched: int, timings: dict,
+               trace: dict | None = None):
         """The decision over ``hyps`` and the hypotheses it indexes: with ``tight_decision``, a pose the raw
         hypotheses single out or find ambiguous is decided again over the refined modes (:meth:`_tightened`), the
-        modes that could not be refined kept as rivals (:meth:`_unrefined_rival`)."""
+        modes that could not be refined kept as rivals (:meth:`_unrefined_rival`). ``trace`` (see :meth:`locate`)
+        receives both decisions and the hypotheses they were made over."""
         decision = self._decide(hyps, used, min_matched, timings)
+        if trace is not None:
+            trace.update(raw_decision=decision, raw=hyps, decision=decision, judged=hyps, tight=False)
         if not self.params.tight_decision or decision.best < 0:
             return decision, hyps
         t0 = time.perf_counter()
         tight = self._tightened(hyps, used, vs_ptr, vs_pts)
         timings["decide.tighten"] += (time.perf_counter() - t0) * 1e3
         if not len(tight):
-            return Decision(False, "no refined pose holds at the final tolerances", -1, 0.0, 0.0, 0), tight
-        decision = self._decide(tight, used, min_matched, timings)
-        if decision.accepted and self.params.unrefined_rivals:
-            decision = self._unrefined_rival(hyps, tight, decision)
+            decision = Decision(False, "no refined pose holds at the final tolerances", -1, 0.0, 0.0, 0)
+        else:
+            decision = self._decide(tight, used, min_matched, timings)
+            if decision.accepted and self.params.unrefined_rivals:
+                decision = self._unrefined_rival(hyps, tight, decision)
+        if trace is not None:
+            trace.update(decision=decision, judged=tight, tight=True)
         return decision, tight
 
     def _unrefined_rival(self, hyps, tight, decision: Decision) -> Decision:
@@ -461,8 +472,14 @@ class Relocalizer:
         timings["decide.density"] += part.get("density", 0.0)
         return decision
 
-    def locate(self, submap: PlaneSet) -> RelocResult:
-        """Relocalize ``submap`` (planes in the latest camera frame, with gravity) in the map."""
+    def locate(self, submap: PlaneSet, trace: dict | None = None) -> RelocResult:
+        """Relocalize ``submap`` (planes in the latest camera frame, with gravity) in the map.
+
+        ``trace``: when a dict, it receives what the result was decided on, for explaining it
+        (:func:`reloc.evaluation.explain.explain_query`): ``used`` (the submap planes in the order they were fed,
+        as the hypotheses index them), and from the last decision made, ``raw`` (the verified hypotheses) with
+        ``raw_decision``, ``judged`` (the hypotheses of the final decision: one per mode when ``tight``, the decision
+        over refined poses, else ``raw`` itself) with ``decision``. Tracing changes nothing in the result."""
         if not isinstance(submap, PlaneSet):
             raise ValueError(f"submap: expected a PlaneSet, got {type(submap).__name__}")
         submap.check_geometry("submap")
@@ -477,6 +494,8 @@ class Relocalizer:
         used, order, vs_ptr, vs_pts = self.prepare(submap)
         S = len(used)
         counts["planes_used"] = S
+        if trace is not None:
+            trace["used"] = used
         facing = horizontal_facing(used, p.ground_tolerance_rad)
         distances = sample_distances(vs_ptr, vs_pts)
         sub_ext = K.trimmed_extents(used.normals, used.offsets, used.sample_ptr,
@@ -536,7 +555,7 @@ class Relocalizer:
                 t3 = time.perf_counter()
                 timings["verify"] += (t3 - t2) * 1e3
                 if passed_any := (len(hyps) > 0):
-                    decision, judged = self._judge(hyps, used, vs_ptr, vs_pts, min_matched, timings)
+                    decision, judged = self._judge(hyps, used, vs_ptr, vs_pts, min_matched, timings, trace)
                 timings["decide"] += (time.perf_counter() - t3) * 1e3
                 if passed_any and decision.accepted:
                     break
@@ -550,7 +569,7 @@ class Relocalizer:
                               judged.match[decision.best], counts)
             timings["decide.probe"] += (time.perf_counter() - t0) * 1e3
             if len(hyps) > before:
-                decision, judged = self._judge(hyps, used, vs_ptr, vs_pts, min_matched, timings)
+                decision, judged = self._judge(hyps, used, vs_ptr, vs_pts, min_matched, timings, trace)
             timings["decide"] += (time.perf_counter() - t0) * 1e3
         if not decision.accepted:
             return finish(_rejected(decision.reason, counts, timings))

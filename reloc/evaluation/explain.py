@@ -1,0 +1,109 @@
+"""Why a query came out as it did: the poses the decision weighed, and what each submap plane was under them.
+
+For the developer of a rule and for the operator of a map: ``reloc eval --prepared DIR --explain QUERY`` prints
+:func:`explain_query` for a query of a saved suite, with its ground truth.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from reloc.matching.relocalizer import PLANE_STATES, Relocalizer
+from reloc.matching.scoring import match_quality
+from reloc.planeset import PlaneSet
+from reloc.transforms import pose_error, transform_from_rotation_translation
+
+__all__ = ["explain_query"]
+
+
+def _modes(hyps, tight: bool, params, max_modes: int) -> list[int]:
+    """Rows of ``hyps`` to show: every mode of a decision over refined poses (one row each), else the best raw
+    hypothesis of each distinct pose, best first."""
+    order = np.argsort(-match_quality(hyps.n_matched, hyps.explained), kind="stable")
+    if tight:
+        return [int(i) for i in order[:max_modes]]
+    rows: list[int] = []
+    for i in order:
+        far = all(np.linalg.norm(hyps.t[i] - hyps.t[k]) > params.distinct_translation_m
+                  or _angle(hyps.R[i], hyps.R[k]) > params.distinct_rotation_rad for k in rows)
+        if far:
+            rows.append(int(i))
+            if len(rows) == max_modes:
+                break
+    return rows
+
+
+def _angle(Ra: np.ndarray, Rb: np.ndarray) -> float:
+    return math.acos(float(np.clip(0.5 * (np.trace(Ra.T @ Rb) - 1.0), -1.0, 1.0)))
+
+
+def _pose(hyps, i: int) -> np.ndarray:
+    return transform_from_rotation_translation(hyps.R[i], hyps.t[i])
+
+
+def explain_query(relocalizer: Relocalizer, submap: PlaneSet, T_true: np.ndarray | None = None, *,
+                  max_modes: int = 8) -> str:
+    """A text account of ``relocalizer.locate(submap)``: the result (with its pose error when ``T_true``, the
+    ground truth ``T_map_cam``, is given), the decision over the raw hypotheses and, when made, the one over refined
+    poses; the poses weighed (per mode: distance to the truth, matched planes, explained and unknown fractions of
+    the submap, planes in conflict, whether it has a least-squares pose); what each submap plane was under the
+    winner (and under the pose nearest the truth, when that is another); and whether the map confirms the true
+    pose (:meth:`Relocalizer.confirm`)."""
+    trace: dict = {}
+    res = relocalizer.locate(submap, trace=trace)
+    out = [f"result: {res.status}" + (f" ({res.reason})" if res.reason else "")]
+    if res.relocalized and T_true is not None:
+        e = pose_error(res.T_map_cam, T_true)
+        out.append(f"  pose error {100 * e[0]:.1f} cm, {e[1]:.2f} deg")
+    c = res.counts
+    out.append(f"  {c.get('planes_used', 0)} of {c.get('submap_planes', 0)} submap planes used, "
+               f"{c.get('candidates', 0)} candidate triplets, {c.get('verified', 0)} transforms verified, "
+               f"{c.get('passed', 0)} passed")
+    if "raw" not in trace:
+        return "\n".join(out)
+    raw_d = trace["raw_decision"]
+    out.append(f"decision over {len(trace['raw'])} verified hypotheses: "
+               + ("accepted" if raw_d.accepted else f"rejected ({raw_d.reason})")
+               + f", {raw_d.n_modes} poses, score {raw_d.score:.3f}, runner-up {raw_d.runner_up_score:.3f}")
+    hyps, tight, decision = trace["judged"], trace["tight"], trace["decision"]
+    if tight:
+        out.append(f"decision over refined poses ({len(hyps)} modes): "
+                   + ("accepted" if decision.accepted else f"rejected ({decision.reason})")
+                   + f", score {decision.score:.3f}, runner-up {decision.runner_up_score:.3f}")
+    if not len(hyps):
+        return "\n".join(out)
+    rows = _modes(hyps, tight, relocalizer.params, max_modes)
+    out.append("poses weighed" + (" (one per mode, as decided)" if tight else " (the best raw hypothesis per pose)")
+               + ":")
+    out.append("   #  to truth [m, deg]  planes  explained  unknown  conflicts  least squares")
+    nearest = None
+    if T_true is not None:
+        nearest = min(range(len(hyps)), key=lambda i: pose_error(_pose(hyps, i), T_true)[0])
+    for i in rows:
+        to_truth = "" if T_true is None else "%8.2f %6.1f" % pose_error(_pose(hyps, i), T_true)
+        conflicts = int(np.count_nonzero((hyps.state[i] == 2) | (hyps.state[i] == 6)))
+        refined = ("yes" if hyps.is_refined(i) else "no") if tight else "-"
+        role = "winner" if (decision.accepted and i == decision.best) else ("best" if i == decision.best else "")
+        role += " (nearest the truth)" if i == nearest else ""
+        out.append(f"  {i:2d}  {to_truth:>15s}  {int(hyps.n_matched[i]):6d}  {hyps.explained[i]:9.2f}  "
+                   f"{hyps.unknown[i]:7.2f}  {conflicts:9d}  {refined:>13s}  {role}".rstrip())
+    used = trace["used"]
+    # The planes under the decision's best pose, the pose nearest the truth and the strongest other pose.
+    other = next((i for i in rows if i not in (decision.best, nearest)), None)
+    shown = [i for i in dict.fromkeys([decision.best, nearest, other]) if i is not None and i >= 0]
+    out.append("submap planes under poses " + ", ".join(str(i) for i in shown) + " (state and map plane; states: "
+               + ", ".join(f"{k} {w}" for k, w in enumerate(PLANE_STATES)) + "):")
+    out.append(("   j  area [m^2]  normal (map, pose %d)  " % shown[0] + "".join(f"  pose {i:<9d}" for i in shown))
+               .rstrip())
+    for j in range(len(used)):
+        n = hyps.R[shown[0]] @ used.normals[j]
+        cells = "".join(f"  {PLANE_STATES[hyps.state[i, j]]:<9s}{int(hyps.match[i, j]):>5d}" for i in shown)
+        # (a match of -1: no map plane)
+        out.append(f"  {j:2d}  {used.areas[j]:10.2f}  ({n[0]:5.2f} {n[1]:5.2f} {n[2]:5.2f})   {cells}")
+    if T_true is not None:
+        conf = relocalizer.confirm(submap, T_true)
+        out.append("the true pose: " + ("confirmed by the map, refined %.1f cm off" % (100 * pose_error(
+            conf.T_map_cam, T_true)[0]) if conf.relocalized else f"not confirmed ({conf.reason})"))
+    return "\n".join(out)
