@@ -223,3 +223,4 @@ def test_eval_command_saves_a_prepared_suite_and_evaluates_it_again(tmp_path):
     assert "result: relocalized" in told and "winner (nearest the truth)" in told
     assert "no query 'nope' in this suite" in run("--prepared", str(suite), "--explain", "nope", code=2).output
     assert "--explain-map goes with --explain" in run("--explain-map", "office", code=2).output
+    assert "--json goes without it" in run("--explain", tp["query"], "--json", "x.json", code=2).output

@@ -318,14 +318,18 @@ def test_a_trace_explains_the_result_without_changing_it(living_relocalizer):
     assert lines[-1].startswith("the true pose: confirmed by the map")
 
 
-def test_an_explained_twin_room_view_shows_both_rooms():
+@pytest.mark.parametrize("tight", [True, False])
+def test_an_explained_twin_room_view_shows_both_rooms(tight):
     # A view of one of two identical rooms 7 m apart is rejected as ambiguous; the explanation lists the true pose
-    # and the twin, 7 m from it, among the poses weighed.
+    # and the twin, 7 m from it, among the poses weighed (the modes of the decision over refined poses, or without
+    # it the best raw hypothesis of each distinct pose).
+    from dataclasses import replace
+
     from reloc.evaluation.explain import explain_query
 
     rng = np.random.default_rng(8)
     two_rooms = furnished_room("meeting") + furnished_room("meeting", origin=(7.0, 0.0))
-    reloc = Relocalizer(scene_planes(two_rooms), MatchingParams())
+    reloc = Relocalizer(scene_planes(two_rooms), replace(MatchingParams(), tight_decision=tight))
     for T in views(rng, 10):
         sub = view_planes(furnished_room("meeting"), T, point_noise_m=0.005, rng=rng)
         text = explain_query(reloc, sub, T)
@@ -333,9 +337,11 @@ def test_an_explained_twin_room_view_shows_both_rooms():
             break
     else:
         pytest.fail("no view was rejected as ambiguous")
-    start = text.splitlines().index("   #  to truth [m, deg]  planes  explained  unknown  conflicts  least squares")
+    lines = text.splitlines()
+    assert ("decision over refined poses" in text) == tight
+    start = lines.index("   #  to truth [m, deg]  planes  explained  unknown  conflicts  least squares")
     dist = []
-    for ln in text.splitlines()[start + 1:]:
+    for ln in lines[start + 1:]:
         if not re.match(r"\s+\d+\s+\d", ln):
             break
         dist.append(float(ln.split()[1]))

@@ -78,6 +78,8 @@ def eval_cmd(scenes, source, queries, negatives, window, map_frames, noise, quer
         raise click.UsageError("--explain works without --ablation only")
     if explain_map and not explain:
         raise click.UsageError("--explain-map goes with --explain")
+    if explain and json_path:
+        raise click.UsageError("--explain prints an account, not the table: --json goes without it")
     if ablation and (save_prepared or prepared_dir):
         raise click.UsageError("--save-prepared and --prepared work without --ablation only (its VR-NE and VR-NM "
                                "rows need maps and queries of their own)")

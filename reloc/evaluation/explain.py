@@ -11,7 +11,7 @@ import math
 import numpy as np
 
 from reloc.matching.relocalizer import PLANE_STATES, Relocalizer
-from reloc.matching.scoring import match_quality
+from reloc.matching.scoring import in_conflict, match_quality
 from reloc.planeset import PlaneSet
 from reloc.transforms import pose_error, transform_from_rotation_translation
 
@@ -25,18 +25,14 @@ def _modes(hyps, tight: bool, params, max_modes: int) -> list[int]:
     if tight:
         return [int(i) for i in order[:max_modes]]
     rows: list[int] = []
+    max_deg = math.degrees(params.distinct_rotation_rad)
     for i in order:
-        far = all(np.linalg.norm(hyps.t[i] - hyps.t[k]) > params.distinct_translation_m
-                  or _angle(hyps.R[i], hyps.R[k]) > params.distinct_rotation_rad for k in rows)
-        if far:
+        apart = [pose_error(_pose(hyps, i), _pose(hyps, k)) for k in rows]
+        if all(dt > params.distinct_translation_m or deg > max_deg for dt, deg in apart):
             rows.append(int(i))
             if len(rows) == max_modes:
                 break
     return rows
-
-
-def _angle(Ra: np.ndarray, Rb: np.ndarray) -> float:
-    return math.acos(float(np.clip(0.5 * (np.trace(Ra.T @ Rb) - 1.0), -1.0, 1.0)))
 
 
 def _pose(hyps, i: int) -> np.ndarray:
@@ -49,8 +45,8 @@ def explain_query(relocalizer: Relocalizer, submap: PlaneSet, T_true: np.ndarray
     ground truth ``T_map_cam``, is given), the decision over the raw hypotheses and, when made, the one over refined
     poses; the poses weighed (per mode: distance to the truth, matched planes, explained and unknown fractions of
     the submap, planes in conflict, whether it has a least-squares pose); what each submap plane was under the
-    winner (and under the pose nearest the truth, when that is another); and whether the map confirms the true
-    pose (:meth:`Relocalizer.confirm`)."""
+    decision's best pose, the pose nearest the truth and the strongest other pose (its state, and the map plane it
+    matched, -1 for none); and whether the map confirms the true pose (:meth:`Relocalizer.confirm`)."""
     trace: dict = {}
     res = relocalizer.locate(submap, trace=trace)
     out = [f"result: {res.status}" + (f" ({res.reason})" if res.reason else "")]
@@ -83,7 +79,7 @@ def explain_query(relocalizer: Relocalizer, submap: PlaneSet, T_true: np.ndarray
         nearest = min(range(len(hyps)), key=lambda i: pose_error(_pose(hyps, i), T_true)[0])
     for i in rows:
         to_truth = "" if T_true is None else "%8.2f %6.1f" % pose_error(_pose(hyps, i), T_true)
-        conflicts = int(np.count_nonzero((hyps.state[i] == 2) | (hyps.state[i] == 6)))
+        conflicts = int(np.count_nonzero(in_conflict(hyps.state[i])))
         refined = ("yes" if hyps.is_refined(i) else "no") if tight else "-"
         role = "winner" if (decision.accepted and i == decision.best) else ("best" if i == decision.best else "")
         role += " (nearest the truth)" if i == nearest else ""
@@ -93,14 +89,14 @@ def explain_query(relocalizer: Relocalizer, submap: PlaneSet, T_true: np.ndarray
     # The planes under the decision's best pose, the pose nearest the truth and the strongest other pose.
     other = next((i for i in rows if i not in (decision.best, nearest)), None)
     shown = [i for i in dict.fromkeys([decision.best, nearest, other]) if i is not None and i >= 0]
-    out.append("submap planes under poses " + ", ".join(str(i) for i in shown) + " (state and map plane; states: "
-               + ", ".join(f"{k} {w}" for k, w in enumerate(PLANE_STATES)) + "):")
+    states = ", ".join(f"{k} {w}" for k, w in enumerate(PLANE_STATES))
+    out.append("submap planes under poses " + ", ".join(str(i) for i in shown)
+               + f" (state and map plane, -1 for none; states: {states}):")
     out.append(("   j  area [m^2]  normal (map, pose %d)  " % shown[0] + "".join(f"  pose {i:<9d}" for i in shown))
                .rstrip())
     for j in range(len(used)):
         n = hyps.R[shown[0]] @ used.normals[j]
         cells = "".join(f"  {PLANE_STATES[hyps.state[i, j]]:<9s}{int(hyps.match[i, j]):>5d}" for i in shown)
-        # (a match of -1: no map plane)
         out.append(f"  {j:2d}  {used.areas[j]:10.2f}  ({n[0]:5.2f} {n[1]:5.2f} {n[2]:5.2f})   {cells}")
     if T_true is not None:
         conf = relocalizer.confirm(submap, T_true)
