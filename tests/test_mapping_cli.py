@@ -82,14 +82,22 @@ def test_locate_writes_one_line_per_query(office_sequence, tmp_path):
 
 def test_locate_checks_each_query_at_the_sequences_own_pose(office_sequence, tmp_path, capsys):
     """--check-poses: the answer's error against the sequence's pose, and whether that pose is identifiable (the map
-    confirms it as locate would accept it); every answered view here is."""
+    confirms it as locate would accept it); every answered view here is. --explain writes each query's account,
+    its pose error the one in the JSON line."""
     map_path = tmp_path / "m.npz"
     assert main(["map", "build", str(office_sequence), "-o", str(map_path), "--quiet"]) == 0
     capsys.readouterr()
-    results = tmp_path / "results.jsonl"
+    results, accounts = tmp_path / "results.jsonl", tmp_path / "why.txt"
     assert main(["locate", "--map", str(map_path), str(office_sequence), "--frames", "120:240", "--every", "30",
-                 "--window", "20", "--stride", "3", "--out", str(results), "--check-poses", "--quiet"]) == 0
+                 "--window", "20", "--stride", "3", "--out", str(results), "--check-poses", "--quiet",
+                 "--explain", str(accounts)]) == 0
     lines = [json.loads(x) for x in results.read_text().splitlines()]
+    told = accounts.read_text().split("\n\n== ")
+    assert len(told) == len(lines)
+    for x, text in zip(lines, told):
+        assert text.lstrip("= ").startswith(f"frame {x['frame']} (stamp_ns {x['stamp_ns']})\nresult: {x['status']}")
+        if x["status"] == "relocalized":
+            assert f"pose error {100 * x['truth']['translation_error_m']:.1f} cm" in text
     from drivers.readers import open_sequence
 
     seq = open_sequence(office_sequence)

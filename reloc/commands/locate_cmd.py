@@ -24,8 +24,12 @@ from reloc.commands.map_cmd import SOURCES, config_sections, parse_frames, seque
 @click.option("--check-poses", is_flag=True,
               help="Also check each query at the sequence's own pose (ground truth in the map's frame): the error "
                    "of the answer, and whether that pose is confirmed as locate would accept it.")
+@click.option("--explain", "explain_path", type=click.Path(dir_okay=False), default=None,
+              help="Also write to this text file why each query came out as it did: the poses weighed and each "
+                   "submap plane's state under them (against the sequence's poses with --check-poses).")
 @click.option("--quiet", is_flag=True, help="No progress bar.")
-def locate(seq, map_path, out_path, frames_spec, window, stride, every, source, config_path, check_poses, quiet):
+def locate(seq, map_path, out_path, frames_spec, window, stride, every, source, config_path, check_poses,
+           explain_path, quiet):
     """Relocalize frames of SEQ in the map: one JSON line per query frame.
 
     Each query is a submap of the last --window frames (--stride apart) ending at the query frame, fused with the
@@ -53,6 +57,7 @@ def locate(seq, map_path, out_path, frames_spec, window, stride, every, source, 
     from reloc._numba import warm_up
     from reloc.atomic import atomic_write_text
     from reloc.config import load_config
+    from reloc.evaluation.explain import explain_result
     from reloc.evaluation.metrics import identifiable as identifiable_at
     from reloc.mapping import MappingParams, build_submap, load_map
     from reloc.matching import MatchingParams, Relocalizer
@@ -91,6 +96,7 @@ def locate(seq, map_path, out_path, frames_spec, window, stride, every, source, 
         return out
 
     lines, counts = [], {"relocalized": 0, "rejected": 0, "error": 0}
+    accounts: list[str] = []
     identifiable = 0
     for q in tqdm(queries, desc="locate", unit="query", disable=quiet, leave=False):
         record = {"frame": int(q), "stamp_ns": int(sequence.stamps_ns[q])}
@@ -106,7 +112,8 @@ def locate(seq, map_path, out_path, frames_spec, window, stride, every, source, 
             submap = build_submap([it[0] for it in items], [it[1] for it in items] if len(items) > 1 else None,
                                   mapping, fusion)
             submap_ms = (time.perf_counter() - t0) * 1e3
-            res = reloc.locate(submap)
+            trace = {} if explain_path else None
+            res = reloc.locate(submap, trace=trace)
             d = res.to_dict()
             record.update(
                 status=d["status"], reason=d["reason"], T_map_cam=d["T_map_cam"], score=d["score"],
@@ -118,6 +125,10 @@ def locate(seq, map_path, out_path, frames_spec, window, stride, every, source, 
             if check_poses:
                 record["truth"] = truth_of(submap, res, items[-1][1])
                 identifiable += int(bool(record["truth"].get("identifiable")))
+            if explain_path:
+                truth = items[-1][1] if check_poses else None
+                accounts.append(f"== frame {int(q)} (stamp_ns {record['stamp_ns']})\n"
+                                + explain_result(reloc, submap, res, trace, truth))
             counts[res.status] += 1
         except (ValueError, OSError) as exc:
             record.update(status="error", reason=str(exc), T_map_cam=None, score=None, matched_planes=0)
@@ -125,6 +136,8 @@ def locate(seq, map_path, out_path, frames_spec, window, stride, every, source, 
         lines.append(json.dumps(record))
     atomic_write_text(out_path, "\n".join(lines) + ("\n" if lines else ""))
     atomic_write_text(out_path + ".config.yaml", yaml.safe_dump(config_sections(cfg), sort_keys=False))
+    if explain_path:
+        atomic_write_text(explain_path, "\n\n".join(accounts) + ("\n" if accounts else ""))
     times = [json.loads(x).get("timings_ms", {}).get("total") for x in lines]
     times = [t for t in times if t is not None]
     med = f", median {np.median(times):.1f} ms per relocalization" if times else ""

@@ -15,7 +15,7 @@ from reloc.matching.scoring import in_conflict, match_quality
 from reloc.planeset import PlaneSet
 from reloc.transforms import pose_error, transform_from_rotation_translation
 
-__all__ = ["explain_query"]
+__all__ = ["explain_query", "explain_result"]
 
 
 def _modes(hyps, tight: bool, params, max_modes: int) -> list[int]:
@@ -49,6 +49,13 @@ def explain_query(relocalizer: Relocalizer, submap: PlaneSet, T_true: np.ndarray
     matched, -1 for none); and whether the map confirms the true pose (:meth:`Relocalizer.confirm`)."""
     trace: dict = {}
     res = relocalizer.locate(submap, trace=trace)
+    return explain_result(relocalizer, submap, res, trace, T_true, max_modes=max_modes)
+
+
+def explain_result(relocalizer: Relocalizer, submap: PlaneSet, res, trace: dict, T_true: np.ndarray | None = None,
+                   *, max_modes: int = 8) -> str:
+    """:func:`explain_query` of a result already there: ``res`` and ``trace`` from ``relocalizer.locate(submap,
+    trace=trace)``."""
     out = [f"result: {res.status}" + (f" ({res.reason})" if res.reason else "")]
     if res.relocalized and T_true is not None:
         e = pose_error(res.T_map_cam, T_true)
