@@ -339,13 +339,19 @@ def test_an_explained_twin_room_view_shows_both_rooms(tight):
         pytest.fail("no view was rejected as ambiguous")
     lines = text.splitlines()
     assert ("decision over refined poses" in text) == tight
-    start = lines.index("   #  to truth [m, deg]  planes  explained  unknown  conflicts  least squares")
-    dist = []
+    start = next(k for k, ln in enumerate(lines) if ln.startswith("   #  to truth [m, deg]"))
+    assert lines[start].split()[-5:] == ["least", "squares", "score", "as", "rival"]
+    rows = []
     for ln in lines[start + 1:]:
         if not re.match(r"\s+\d+\s+\d", ln):
             break
-        dist.append(float(ln.split()[1]))
+        rows.append(ln.split())
+    dist = [float(r[1]) for r in rows]
     assert min(dist) < 0.05 and any(abs(d - 7.0) < 0.1 for d in dist), text
+    # The decision's score is its best mode's; the runner-up is another mode's score as a rival.
+    score, runner = re.search(r"score ([0-9.]+), runner-up ([0-9.]+)$", lines[3 if tight else 2]).groups()
+    assert [r[8] for r in rows if "best" in r] == [score]
+    assert runner in [r[9] for r in rows if "best" not in r]
 
 
 def test_result_is_json_ready(living_relocalizer):

@@ -44,7 +44,8 @@ def explain_query(relocalizer: Relocalizer, submap: PlaneSet, T_true: np.ndarray
     """A text account of ``relocalizer.locate(submap)``: the result (with its pose error when ``T_true``, the
     ground truth ``T_map_cam``, is given), the decision over the raw hypotheses and, when made, the one over refined
     poses; the poses weighed (per mode: distance to the truth, matched planes, explained and unknown fractions of
-    the submap, planes in conflict, whether it has a least-squares pose); what each submap plane was under the
+    the submap, planes in conflict, whether it has a least-squares pose, its score in the decision and its score as
+    a rival, which the winner's must exceed ``min_ambiguity_ratio`` times); what each submap plane was under the
     decision's best pose, the pose nearest the truth and the strongest other pose (its state, and the map plane it
     matched, -1 for none); and whether the map confirms the true pose (:meth:`Relocalizer.confirm`)."""
     trace: dict = {}
@@ -70,7 +71,7 @@ def explain_result(relocalizer: Relocalizer, submap: PlaneSet, res, trace: dict,
     out.append(f"decision over {len(trace['raw'])} verified hypotheses: "
                + ("accepted" if raw_d.accepted else f"rejected ({raw_d.reason})")
                + f", {raw_d.n_modes} poses, score {raw_d.score:.3f}, runner-up {raw_d.runner_up_score:.3f}")
-    hyps, tight, decision = trace["judged"], trace["tight"], trace["decision"]
+    hyps, tight, decision, modes = trace["judged"], trace["tight"], trace["decision"], trace["modes"]
     if tight:
         out.append(f"decision over refined poses ({len(hyps)} modes): "
                    + ("accepted" if decision.accepted else f"rejected ({decision.reason})")
@@ -80,7 +81,7 @@ def explain_result(relocalizer: Relocalizer, submap: PlaneSet, res, trace: dict,
     rows = _modes(hyps, tight, relocalizer.params, max_modes)
     out.append("poses weighed" + (" (one per mode, as decided)" if tight else " (the best raw hypothesis per pose)")
                + ":")
-    out.append("   #  to truth [m, deg]  planes  explained  unknown  conflicts  least squares")
+    out.append("   #  to truth [m, deg]  planes  explained  unknown  conflicts  least squares   score  as rival")
     nearest = None
     if T_true is not None:
         nearest = min(range(len(hyps)), key=lambda i: pose_error(_pose(hyps, i), T_true)[0])
@@ -90,8 +91,10 @@ def explain_result(relocalizer: Relocalizer, submap: PlaneSet, res, trace: dict,
         refined = ("yes" if hyps.is_refined(i) else "no") if tight else "-"
         role = "winner" if (decision.accepted and i == decision.best) else ("best" if i == decision.best else "")
         role += " (nearest the truth)" if i == nearest else ""
+        scores = "%6.3f  %8.3f" % (modes["score"][modes["group"][i]], modes["rival"][modes["group"][i]]) if modes \
+            else "%6s  %8s" % ("-", "-")
         out.append(f"  {i:2d}  {to_truth:>15s}  {int(hyps.n_matched[i]):6d}  {hyps.explained[i]:9.2f}  "
-                   f"{hyps.unknown[i]:7.2f}  {conflicts:9d}  {refined:>13s}  {role}".rstrip())
+                   f"{hyps.unknown[i]:7.2f}  {conflicts:9d}  {refined:>13s}  {scores}  {role}".rstrip())
     used = trace["used"]
     # The planes under the decision's best pose, the pose nearest the truth and the strongest other pose.
     other = next((i for i in rows if i not in (decision.best, nearest)), None)

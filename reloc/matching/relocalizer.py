@@ -421,22 +421,25 @@ class Relocalizer:
         hypotheses single out or find ambiguous is decided again over the refined modes (:meth:`_tightened`), the
         modes that could not be refined kept as rivals (:meth:`_unrefined_rival`). ``trace`` (see :meth:`locate`)
         receives both decisions and the hypotheses they were made over."""
-        decision = self._decide(hyps, used, min_matched, timings)
+        raw_modes = {} if trace is not None else None
+        decision = self._decide(hyps, used, min_matched, timings, raw_modes)
         if trace is not None:
-            trace.update(raw_decision=decision, raw=hyps, decision=decision, judged=hyps, tight=False)
+            trace.update(raw_decision=decision, raw=hyps, raw_modes=raw_modes, decision=decision, judged=hyps,
+                         modes=raw_modes, tight=False)
         if not self.params.tight_decision or decision.best < 0:
             return decision, hyps
         t0 = time.perf_counter()
         tight = self._tightened(hyps, used, vs_ptr, vs_pts)
         timings["decide.tighten"] += (time.perf_counter() - t0) * 1e3
+        tight_modes = {} if trace is not None else None
         if not len(tight):
             decision = Decision(False, "no refined pose holds at the final tolerances", -1, 0.0, 0.0, 0)
         else:
-            decision = self._decide(tight, used, min_matched, timings)
+            decision = self._decide(tight, used, min_matched, timings, tight_modes)
             if decision.accepted and self.params.unrefined_rivals:
                 decision = self._unrefined_rival(hyps, tight, decision)
         if trace is not None:
-            trace.update(decision=decision, judged=tight, tight=True)
+            trace.update(decision=decision, judged=tight, modes=tight_modes, tight=True)
         return decision, tight
 
     def _unrefined_rival(self, hyps, tight, decision: Decision) -> Decision:
@@ -461,13 +464,14 @@ class Relocalizer:
                         f"{hyps.explained[a]:.2f} of the submap, as well as the winner, has no least-squares pose to "
                         "be decided on", -1, decision.score, decision.runner_up_score, decision.n_modes)
 
-    def _decide(self, hyps, used: PlaneSet, min_matched: int, timings: dict) -> Decision:
-        """The decision over every hypothesis so far; its weights and density times go to ``timings``."""
+    def _decide(self, hyps, used: PlaneSet, min_matched: int, timings: dict, modes: dict | None = None) -> Decision:
+        """The decision over every hypothesis so far; its weights and density times go to ``timings``, its modes to
+        ``modes`` when given (see :func:`decide`)."""
         part: dict = {}
         decision = decide(hyps.R, hyps.t, hyps.match, hyps.over, hyps.n_matched, hyps.explained, self.params,
                           min_matched=min_matched, state=hyps.state, areas=used.areas, free_frac=hyps.free_frac,
                           unknown=hyps.unknown,
-                          optimistic=len(self.index.free_keys) > 0, timings_ms=part)
+                          optimistic=len(self.index.free_keys) > 0, timings_ms=part, modes=modes)
         timings["decide.weights"] += part.get("weights", 0.0)
         timings["decide.density"] += part.get("density", 0.0)
         return decision
@@ -478,8 +482,10 @@ class Relocalizer:
         ``trace``: when a dict, it receives what the result was decided on, for explaining it
         (:func:`reloc.evaluation.explain.explain_query`): ``used`` (the submap planes in the order they were fed,
         as the hypotheses index them), and from the last decision made, ``raw`` (the verified hypotheses) with
-        ``raw_decision``, ``judged`` (the hypotheses of the final decision: one per mode when ``tight``, the decision
-        over refined poses, else ``raw`` itself) with ``decision``. Tracing changes nothing in the result."""
+        ``raw_decision`` and ``raw_modes``, ``judged`` (the hypotheses of the final decision: one per mode when
+        ``tight``, the decision over refined poses, else ``raw`` itself) with ``decision`` and ``modes`` (each
+        hypothesis's mode and each mode's score and score as a rival, see :func:`reloc.matching.scoring.decide`;
+        empty when no decision was made over them). Tracing changes nothing in the result."""
         if not isinstance(submap, PlaneSet):
             raise ValueError(f"submap: expected a PlaneSet, got {type(submap).__name__}")
         submap.check_geometry("submap")

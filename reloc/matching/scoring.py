@@ -135,6 +135,7 @@ def decide(
     unknown: np.ndarray | None = None,
     optimistic: bool = True,
     timings_ms: dict | None = None,
+    modes: dict | None = None,
 ) -> Decision:
     """Pick the best pose among verified hypotheses, or reject with a reason.
 
@@ -149,7 +150,10 @@ def decide(
     the credit an optimistic rival gets for that plane.
 
     ``timings_ms``: when given, the milliseconds of the frequency weights (``"weights"``, Eq. 12-13) and of the kernel
-    density (``"density"``, Eq. 14) are added to it.
+    density (``"density"``, Eq. 14) are added to it. ``modes``: when given, it receives the poses' modes, for
+    explaining the decision: ``group`` (H,) each hypothesis's mode, ``score`` (G,) the density at each mode (the
+    winner's is the decision's score) and ``rival`` (G,) the density each mode has as a rival (with the credit of
+    ``optimistic_rivals``; the runner-up is the largest of the modes distinct from the winner).
     """
     H = R.shape[0]
     if H == 0:
@@ -187,6 +191,8 @@ def decide(
         rival = pose_density(R[leaders], t[leaders], mode_opt, params)
         if z > 0:
             rival = rival * (float(mode_opt.sum()) / z)
+    if modes is not None:
+        modes.update(group=group, score=density, rival=rival)
     if timings_ms is not None:
         t2 = time.perf_counter()
         timings_ms["weights"] = timings_ms.get("weights", 0.0) + (t1 - t0) * 1e3
