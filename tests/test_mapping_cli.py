@@ -98,6 +98,9 @@ def test_locate_checks_each_query_at_the_sequences_own_pose(office_sequence, tmp
         assert text.lstrip("= ").startswith(f"frame {x['frame']} (stamp_ns {x['stamp_ns']})\nresult: {x['status']}")
         if x["status"] == "relocalized":
             assert f"pose error {100 * x['truth']['translation_error_m']:.1f} cm" in text
+        want = ("identifiable (the map confirms it as locate would accept it)" if x["truth"]["identifiable"]
+                else f"not identifiable ({x['truth']['reason']})")
+        assert text.rstrip().splitlines()[-1] == "the true pose: " + want  # the check above, not made again
     from drivers.readers import open_sequence
 
     seq = open_sequence(office_sequence)

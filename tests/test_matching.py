@@ -315,7 +315,7 @@ def test_a_trace_explains_the_result_without_changing_it(living_relocalizer):
     assert f"pose error {100 * pose_error(plain.T_map_cam, T)[0]:.1f} cm" in lines[1]
     rows = [ln.split() for ln in lines if ln.endswith("winner (nearest the truth)")]
     assert len(rows) == 1 and float(rows[0][1]) < 0.05 and int(rows[0][3]) == plain.n_matched
-    assert lines[-1].startswith("the true pose: confirmed by the map")
+    assert lines[-1] == "the true pose: identifiable (the map confirms it as locate would accept it)"
 
 
 @pytest.mark.parametrize("tight", [True, False])

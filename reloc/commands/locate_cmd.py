@@ -126,9 +126,11 @@ def locate(seq, map_path, out_path, frames_spec, window, stride, every, source, 
                 record["truth"] = truth_of(submap, res, items[-1][1])
                 identifiable += int(bool(record["truth"].get("identifiable")))
             if explain_path:
+                # With --check-poses the account reuses the identifiability checked above.
                 truth = items[-1][1] if check_poses else None
+                known = (record["truth"]["identifiable"], record["truth"]["reason"]) if truth is not None else None
                 accounts.append(f"== frame {int(q)} (stamp_ns {record['stamp_ns']})\n"
-                                + explain_result(reloc, submap, res, trace, truth))
+                                + explain_result(reloc, submap, res, trace, truth, identified=known))
             counts[res.status] += 1
         except (ValueError, OSError) as exc:
             record.update(status="error", reason=str(exc), T_map_cam=None, score=None, matched_planes=0)

@@ -10,6 +10,7 @@ import math
 
 import numpy as np
 
+from reloc.evaluation.metrics import identifiable
 from reloc.matching.relocalizer import PLANE_STATES, Relocalizer
 from reloc.matching.scoring import in_conflict, match_quality
 from reloc.planeset import PlaneSet
@@ -47,16 +48,17 @@ def explain_query(relocalizer: Relocalizer, submap: PlaneSet, T_true: np.ndarray
     the submap, planes in conflict, whether it has a least-squares pose, its score in the decision and its score as
     a rival, which the winner's must exceed ``min_ambiguity_ratio`` times); what each submap plane was under the
     decision's best pose, the pose nearest the truth and the strongest other pose (its state, and the map plane it
-    matched, -1 for none); and whether the map confirms the true pose (:meth:`Relocalizer.confirm`)."""
+    matched, -1 for none); and whether the true pose is identifiable (:func:`reloc.evaluation.metrics.identifiable`:
+    the map confirms it as ``locate`` would accept it)."""
     trace: dict = {}
     res = relocalizer.locate(submap, trace=trace)
     return explain_result(relocalizer, submap, res, trace, T_true, max_modes=max_modes)
 
 
 def explain_result(relocalizer: Relocalizer, submap: PlaneSet, res, trace: dict, T_true: np.ndarray | None = None,
-                   *, max_modes: int = 8) -> str:
+                   *, max_modes: int = 8, identified: tuple[bool, str] | None = None) -> str:
     """:func:`explain_query` of a result already there: ``res`` and ``trace`` from ``relocalizer.locate(submap,
-    trace=trace)``."""
+    trace=trace)``; ``identified``, when the caller has it, is :func:`identifiable`'s answer for ``T_true``."""
     out = [f"result: {res.status}" + (f" ({res.reason})" if res.reason else "")]
     if res.relocalized and T_true is not None:
         e = pose_error(res.T_map_cam, T_true)
@@ -109,7 +111,7 @@ def explain_result(relocalizer: Relocalizer, submap: PlaneSet, res, trace: dict,
         cells = "".join(f"  {PLANE_STATES[hyps.state[i, j]]:<9s}{int(hyps.match[i, j]):>5d}" for i in shown)
         out.append(f"  {j:2d}  {used.areas[j]:10.2f}  ({n[0]:5.2f} {n[1]:5.2f} {n[2]:5.2f})   {cells}")
     if T_true is not None:
-        conf = relocalizer.confirm(submap, T_true)
-        out.append("the true pose: " + ("confirmed by the map, refined %.1f cm off" % (100 * pose_error(
-            conf.T_map_cam, T_true)[0]) if conf.relocalized else f"not confirmed ({conf.reason})"))
+        ident, why = identified if identified is not None else identifiable(relocalizer, submap, T_true)
+        out.append("the true pose: " + ("identifiable (the map confirms it as locate would accept it)" if ident
+                                        else f"not identifiable ({why})"))
     return "\n".join(out)
