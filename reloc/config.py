@@ -410,6 +410,12 @@ class EvaluationConfig(_Section):
         description="Matched planes along the translation's weakest direction must add up to this area: no small "
         "plane alone may pin the pose along an axis (part of scene uniqueness).",
     )
+    hidden_against_support: bool = Field(
+        True,
+        description="Planes the pose puts where the map says its cameras could not see them (behind the map's "
+        "surfaces; the occlusion test) take their area off that support along the weakest direction: a meeting room "
+        "seen through a doorway, placed in a corridor pinned by one cabinet face, is not a pose.",
+    )
     match_max_angle_deg: float = Field(5.0, gt=0, description="A submap plane matches a map plane within this angle...")
     match_max_offset_m: float = Field(0.08, gt=0, description="...and this offset, after the transform.")
     kde_sigma_translation_m: float = Field(0.1, gt=0, description="Eq. 14 information matrix: translation scale.")

@@ -46,6 +46,7 @@ class MatchingParams:
     scene_uniqueness: bool = True
     min_matched_planes: int = 5
     min_direction_support_m2: float = 0.4
+    hidden_against_support: bool = True
     min_explained_fraction: float = 0.85
     min_explained_known_fraction: float = 0.7
     min_competitor_fraction: float = 0.6
@@ -170,6 +171,7 @@ class MatchingParams:
             scene_uniqueness=e.scene_uniqueness,
             min_matched_planes=e.min_matched_planes,
             min_direction_support_m2=e.min_direction_support_m2,
+            hidden_against_support=e.hidden_against_support,
             min_explained_fraction=e.min_explained_fraction,
             min_explained_known_fraction=e.min_explained_known_fraction,
             min_competitor_fraction=e.min_competitor_fraction,

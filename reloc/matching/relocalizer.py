@@ -175,25 +175,37 @@ class _Hypotheses:
         return int(self.R.shape[0])
 
 
-def support_per_direction(planes: PlaneSet, match_row: np.ndarray, min_area_m2: float) -> float:
+def support_per_direction(planes: PlaneSet, match_row: np.ndarray, min_area_m2: float,
+                          against: np.ndarray | None = None) -> tuple[float, float]:
     """Area (m^2) of the matched planes (each of at least ``min_area_m2``) that constrain the translation along its
-    weakest direction.
+    weakest direction, and the area of the planes flagged in ``against`` (S,) bool (each of at least
+    ``min_area_m2``, matched or not) along that same direction: evidence against the pose there, which the caller
+    takes off the support.
 
     The weakest direction is the eigenvector of ``sum a n n^T`` over the matched planes (area ``a``) with the
     smallest eigenvalue, as in ICP degeneracy analysis; a plane supports it when its normal is within 60 degrees.
     A corridor view (floor, ceiling, two walls and one door jamb) is pinned along the corridor by the jamb alone,
     a few tenths of a square metre: one wrong match there would give a confident wrong pose. The caller compares
-    the figure with ``min_direction_support_m2`` (0.4 m^2: at 0.5 the relocalization suite rejected corridor
-    views pinned by 0.41-0.48 m^2; accepted, the two of them with ToF noise came out 2 and 14 mm off).
+    the support less the area against with ``min_direction_support_m2`` (0.4 m^2: at 0.5 the relocalization suite
+    rejected corridor views pinned by 0.41-0.48 m^2; accepted, the two of them with ToF noise came out 2 and 14 mm
+    off). Against, in :meth:`Relocalizer.locate`: the planes the map hides from the submap's cameras under the pose
+    (``hidden_against_support``). A meeting-room view placed in the corridor scene was pinned along the corridor
+    by a cabinet face of 0.70 m^2, while the wall of the room it saw through a doorway, 0.59 m^2 and also across
+    the corridor, lay behind the corridor's wall.
     """
-    js = np.flatnonzero((match_row >= 0) & (planes.areas >= min_area_m2))
+    large = planes.areas >= min_area_m2
+    js = np.flatnonzero((match_row >= 0) & large)
     if len(js) == 0:
-        return 0.0
+        return 0.0, 0.0
     n = planes.normals[js]
     a = planes.areas[js]
     vals, vecs = np.linalg.eigh((n * a[:, None]).T @ n)
     e = vecs[:, 0]
-    return float(a[np.abs(n @ e) >= 0.5].sum())
+    support = float(a[np.abs(n @ e) >= 0.5].sum())
+    if against is None:
+        return support, 0.0
+    ks = np.flatnonzero(against & large)
+    return support, float(planes.areas[ks][np.abs(planes.normals[ks] @ e) >= 0.5].sum())
 
 
 class Relocalizer:
@@ -630,10 +642,17 @@ class Relocalizer:
             return _rejected(f"pose does not hold at tight tolerances: {int(v.n_matched[0])} planes, "
                              f"{v.explained[0]:.2f} of the submap", counts, timings)
         match_row, explained = v.match[0], float(v.explained[0])
-        weakest = support_per_direction(used, match_row, p.min_counted_area_m2) if p.scene_uniqueness else math.inf
-        if weakest < p.min_direction_support_m2:
-            return _rejected(f"pose weakly constrained: {weakest:.2f} m^2 of matched planes along its weakest "
-                             f"direction (needs {p.min_direction_support_m2})", counts, timings)
+        if p.scene_uniqueness:
+            hidden = None
+            if p.occlusion and p.hidden_against_support:
+                state = v.state.copy()
+                self.mark_hidden(used, vs_ptr, vs_pts, T[None, :3, :3], T[None, :3, 3], state)
+                hidden = state[0] == 6
+            support, against = support_per_direction(used, match_row, p.min_counted_area_m2, hidden)
+            if support - against < p.min_direction_support_m2:
+                less = f", less {against:.2f} m^2 of planes the map hides from its cameras" if against else ""
+                return _rejected(f"pose weakly constrained: {support:.2f} m^2 of matched planes along its weakest "
+                                 f"direction{less} (needs {p.min_direction_support_m2})", counts, timings)
         js = np.flatnonzero(match_row >= 0)
         matched = np.stack([order[js], match_row[js].astype(np.int64)], axis=1)
         return RelocResult(RELOCALIZED, "", T, decision.score, ratio(decision.score, decision.runner_up_score),
