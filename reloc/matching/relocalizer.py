@@ -642,7 +642,7 @@ class Relocalizer:
             return _rejected(f"pose does not hold at tight tolerances: {int(v.n_matched[0])} planes, "
                              f"{v.explained[0]:.2f} of the submap", counts, timings)
         match_row, explained = v.match[0], float(v.explained[0])
-        if p.scene_uniqueness:
+        if p.scene_uniqueness and p.min_direction_support_m2 > 0:  # 0: the test is off, with what it takes off
             hidden = None
             if p.occlusion and p.hidden_against_support:
                 state = v.state.copy()
