@@ -313,6 +313,10 @@ def test_a_trace_explains_the_result_without_changing_it(living_relocalizer):
     lines = text.splitlines()
     assert lines[0] == "result: relocalized"
     assert f"pose error {100 * pose_error(plain.T_map_cam, T)[0]:.1f} cm" in lines[1]
+    # The margin of the last test it passed: the support along its weakest direction, nothing hidden in this room.
+    m = re.fullmatch(r"  along its weakest direction ([0-9.]+) m\^2 of matched planes, less ([0-9.]+) m\^2 the map "
+                     r"hides from its cameras \(needs 0.4\)", lines[2])
+    assert m and float(m.group(1)) >= 0.4 and float(m.group(2)) == 0.0, lines[2]
     rows = [ln.split() for ln in lines if ln.endswith("winner (nearest the truth)")]
     assert len(rows) == 1 and float(rows[0][1]) < 0.05 and int(rows[0][3]) == plain.n_matched
     assert lines[-1] == "the true pose: identifiable (the map confirms it as locate would accept it)"

@@ -643,12 +643,7 @@ class Relocalizer:
                              f"{v.explained[0]:.2f} of the submap", counts, timings)
         match_row, explained = v.match[0], float(v.explained[0])
         if p.scene_uniqueness and p.min_direction_support_m2 > 0:  # 0: the test is off, with what it takes off
-            hidden = None
-            if p.occlusion and p.hidden_against_support:
-                state = v.state.copy()
-                self.mark_hidden(used, vs_ptr, vs_pts, T[None, :3, :3], T[None, :3, 3], state)
-                hidden = state[0] == 6
-            support, against = support_per_direction(used, match_row, p.min_counted_area_m2, hidden)
+            support, against = self.direction_support(used, vs_ptr, vs_pts, T, v)
             if support - against < p.min_direction_support_m2:
                 less = f", less {against:.2f} m^2 of planes the map hides from its cameras" if against else ""
                 return _rejected(f"pose weakly constrained: {support:.2f} m^2 of matched planes along its weakest "
@@ -657,6 +652,19 @@ class Relocalizer:
         matched = np.stack([order[js], match_row[js].astype(np.int64)], axis=1)
         return RelocResult(RELOCALIZED, "", T, decision.score, ratio(decision.score, decision.runner_up_score),
                            matched, explained, counts, timings)
+
+    def direction_support(self, used: PlaneSet, vs_ptr, vs_pts, T: np.ndarray,
+                          v: Verification) -> tuple[float, float]:
+        """The support of pose ``T`` (4x4) along its weakest direction (:func:`support_per_direction`, from its
+        matches in ``v``, its verification at ``T`` alone) and the area taken off it: the planes the map hides from
+        the submap's cameras under ``T`` (with ``occlusion`` and ``hidden_against_support``, else 0)."""
+        p = self.params
+        hidden = None
+        if p.occlusion and p.hidden_against_support:
+            state = v.state[:1].copy()
+            self.mark_hidden(used, vs_ptr, vs_pts, T[None, :3, :3], T[None, :3, 3], state)
+            hidden = state[0] == 6
+        return support_per_direction(used, v.match[0], p.min_counted_area_m2, hidden)
 
     def _holds(self, v: Verification, min_matched: int) -> bool:
         """Whether the single pose verified in ``v`` passes, explains enough and matches ``min_matched`` planes."""
