@@ -71,8 +71,10 @@ def explain_result(relocalizer: Relocalizer, submap: PlaneSet, res, trace: dict,
         v = relocalizer.verify(used, vs_ptr, vs_pts, T[None, :3, :3].copy(), T[None, :3, 3].copy(),
                                np.array([[0, 1, 2, 0, 0, 0]], np.int32), require_triplet=False, tight=True)
         support, against = relocalizer.direction_support(used, vs_ptr, vs_pts, T, v)
-        out.append(f"  along its weakest direction {support:.2f} m^2 of matched planes, less {against:.2f} m^2 the map "
-                   f"hides from its cameras (needs {p.min_direction_support_m2})")
+        less = (f", less {against:.2f} m^2 the map hides from its cameras" if p.occlusion and p.hidden_against_support
+                else "")
+        out.append(f"  along its weakest direction {support:.2f} m^2 of matched planes{less} "
+                   f"(needs {p.min_direction_support_m2})")
     c = res.counts
     out.append(f"  {c.get('planes_used', 0)} of {c.get('submap_planes', 0)} submap planes used, "
                f"{c.get('candidates', 0)} candidate triplets, {c.get('verified', 0)} transforms verified, "

@@ -188,10 +188,10 @@ def support_per_direction(planes: PlaneSet, match_row: np.ndarray, min_area_m2: 
     a few tenths of a square metre: one wrong match there would give a confident wrong pose. The caller compares
     the support less the area against with ``min_direction_support_m2`` (0.4 m^2: at 0.5 the relocalization suite
     rejected corridor views pinned by 0.41-0.48 m^2; accepted, the two of them with ToF noise came out 2 and 14 mm
-    off). Against, in :meth:`Relocalizer.locate`: the planes the map hides from the submap's cameras under the pose
-    (``hidden_against_support``). A meeting-room view placed in the corridor scene was pinned along the corridor
-    by a cabinet face of 0.70 m^2, while the wall of the room it saw through a doorway, 0.59 m^2 and also across
-    the corridor, lay behind the corridor's wall.
+    off). Against, in :meth:`Relocalizer.direction_support`: the planes the map hides from the submap's cameras
+    under the pose (``hidden_against_support``). A meeting-room view placed in the corridor scene was pinned along
+    the corridor by a cabinet face of 0.70 m^2, while the wall of the room it saw through a doorway, 0.59 m^2 and
+    also across the corridor, lay behind the corridor's wall.
     """
     large = planes.areas >= min_area_m2
     js = np.flatnonzero((match_row >= 0) & large)
