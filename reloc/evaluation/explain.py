@@ -63,18 +63,12 @@ def explain_result(relocalizer: Relocalizer, submap: PlaneSet, res, trace: dict,
     if res.relocalized and T_true is not None:
         e = pose_error(res.T_map_cam, T_true)
         out.append(f"  pose error {100 * e[0]:.1f} cm, {e[1]:.2f} deg")
-    p = relocalizer.params
-    if res.relocalized and p.scene_uniqueness and p.min_direction_support_m2 > 0:
+    if res.relocalized and "direction_support" in trace:
         # The last test the answer passed, with its margin: how close it came to being turned away.
-        used, _, vs_ptr, vs_pts = relocalizer.prepare(submap)
-        T = res.T_map_cam
-        v = relocalizer.verify(used, vs_ptr, vs_pts, T[None, :3, :3].copy(), T[None, :3, 3].copy(),
-                               np.array([[0, 1, 2, 0, 0, 0]], np.int32), require_triplet=False, tight=True)
-        support, against = relocalizer.direction_support(used, vs_ptr, vs_pts, T, v)
-        less = (f", less {against:.2f} m^2 the map hides from its cameras" if p.occlusion and p.hidden_against_support
-                else "")
+        support, against = trace["direction_support"]
+        less = f", less {against:.2f} m^2 the map hides from its cameras" if against is not None else ""
         out.append(f"  along its weakest direction {support:.2f} m^2 of matched planes{less} "
-                   f"(needs {p.min_direction_support_m2})")
+                   f"(needs {relocalizer.params.min_direction_support_m2})")
     c = res.counts
     out.append(f"  {c.get('planes_used', 0)} of {c.get('submap_planes', 0)} submap planes used, "
                f"{c.get('candidates', 0)} candidate triplets, {c.get('verified', 0)} transforms verified, "

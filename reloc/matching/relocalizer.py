@@ -497,7 +497,9 @@ class Relocalizer:
         ``raw_decision`` and ``raw_modes``, ``judged`` (the hypotheses of the final decision: one per mode when
         ``tight``, the decision over refined poses, else ``raw`` itself) with ``decision`` and ``modes`` (each
         hypothesis's mode and each mode's score and score as a rival, see :func:`reloc.matching.scoring.decide`;
-        empty when no decision was made over them). Tracing changes nothing in the result."""
+        empty when no decision was made over them), and when the winner reached the test of its weakest direction,
+        ``direction_support``: its support there and the area taken off it (None where nothing is taken off:
+        occlusion test or ``hidden_against_support`` off). Tracing changes nothing in the result."""
         if not isinstance(submap, PlaneSet):
             raise ValueError(f"submap: expected a PlaneSet, got {type(submap).__name__}")
         submap.check_geometry("submap")
@@ -592,10 +594,10 @@ class Relocalizer:
         if not decision.accepted:
             return finish(_rejected(decision.reason, counts, timings))
         return finish(self._conclude(used, order, vs_ptr, vs_pts, judged, judged is not coarse, decision, min_matched,
-                                     counts, timings))
+                                     counts, timings, trace))
 
     def _conclude(self, used, order, vs_ptr, vs_pts, hyps, tightened: bool, decision: Decision, min_matched: int,
-                  counts: dict, timings: dict) -> RelocResult:
+                  counts: dict, timings: dict, trace: dict | None = None) -> RelocResult:
         """The accepted ``decision``'s winner (a hypothesis of ``hyps``; ``tightened``: of the decision over refined
         poses) refined by least squares over all its matched planes (``refine_iterations`` times, each refined pose
         verified again), then held to the final tolerances, to the explained fraction and to the support along its
@@ -644,6 +646,8 @@ class Relocalizer:
         match_row, explained = v.match[0], float(v.explained[0])
         if p.scene_uniqueness and p.min_direction_support_m2 > 0:  # 0: the test is off, with what it takes off
             support, against = self.direction_support(used, vs_ptr, vs_pts, T, v)
+            if trace is not None:
+                trace["direction_support"] = (support, against if p.occlusion and p.hidden_against_support else None)
             if support - against < p.min_direction_support_m2:
                 less = f", less {against:.2f} m^2 of planes the map hides from its cameras" if against else ""
                 return _rejected(f"pose weakly constrained: {support:.2f} m^2 of matched planes along its weakest "
