@@ -322,6 +322,18 @@ class EvaluationConfig(_Section):
     projection: bool = Field(True, description="Map-plane projection inliers, Eq. 10 (off = VR-NP).")
     projection_inlier_m: float = Field(0.08, gt=0, description="A projected sample is an inlier within this distance.")
     min_projection_ratio: float = Field(0.5, ge=0, le=1, description="Pairs below this inlier fraction do not match.")
+    noisy_min_projection_ratio: float = Field(
+        0.3, ge=0, le=1,
+        description="min_projection_ratio for a sensor whose depth noise at 3 m is above noisy_sensor_sigma_m (never "
+        "raised): far planes of a noisy sensor come out tilted by more than projection_inlier_m across their extent, "
+        "so fewer of their samples project within it at the true pose (the suite's stereo: 5 % of true pairs under "
+        "half, Kinect and ToF none).",
+    )
+    noisy_sensor_sigma_m: float = Field(
+        0.02, ge=0,
+        description="Depth noise at 3 m (extraction's noise law) above which noisy_min_projection_ratio applies "
+        "(Kinect 1.3 cm and ToF 0.9 cm class sensors keep min_projection_ratio).",
+    )
     overlap: bool = Field(True, description="Plane overlap by centre and radius, Eq. 11 (off = VR-NO).")
     min_overlap: float = Field(
         0.7, ge=0, le=1,

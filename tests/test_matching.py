@@ -792,3 +792,39 @@ def test_matching_params_with_changes_named_fields_and_refuses_the_rest():
     ]:
         with pytest.raises(ValueError, match=re.escape(message)):
             base.with_(**changes)
+
+
+def test_a_noisy_sensor_matches_planes_with_fewer_samples_on_the_map_plane():
+    # Far planes of a noisy (stereo) sensor come out tilted by more than the projection inlier distance across
+    # their extent. A wall of the view with 7 of its 12 verification samples moved 12 cm off it (5 of 12 within
+    # the 8 cm of the projection test) no longer matches at the true pose with the default ratio (0.5), and does
+    # with the ratio a sensor noisier than 2 cm at 3 m gets (0.3); a Kinect-class sensor keeps 0.5.
+    from reloc.config import Config
+    from reloc.matching.params import scaled_to_sensor
+
+    rects = furnished_room("living")
+    planes = scene_planes(rects)
+    T = look_at((2.0, 2.5, 1.2), (5.5, 3.5, 0.9))
+    sub = view_planes(rects, T)
+    kinect = MatchingParams.from_config(Config())
+    stereo = MatchingParams.from_config(
+        Config.model_validate({"extraction": {"noise_model": "stereo", "noise_coeff": 2.4e-3}}))
+    assert kinect.min_projection_ratio == 0.5 and stereo.min_projection_ratio == 0.3
+    assert scaled_to_sensor(MatchingParams(noisy_min_projection_ratio=1.0), "stereo", 2.4e-3).min_projection_ratio \
+        == 0.5  # never raised: the paper's rules keep theirs
+    with pytest.raises(ValueError, match="noisy_min_projection_ratio"):
+        MatchingParams(noisy_min_projection_ratio=1.5)
+    match = {}
+    for name, params, moved in (("as seen", kinect, 0.0), ("kinect", kinect, 0.12), ("stereo", stereo, 0.12)):
+        reloc = Relocalizer(planes, params)
+        used, _, vs_ptr, vs_pts = reloc.prepare(sub)
+        j = int(np.argmax(used.areas))
+        assert vs_ptr[j + 1] - vs_ptr[j] == 12
+        vs_pts = vs_pts.copy()
+        vs_pts[vs_ptr[j]: vs_ptr[j] + 7] += moved * used.normals[j]
+        v = reloc.verify(used, vs_ptr, vs_pts, T[None, :3, :3].copy(), T[None, :3, 3].copy(),
+                         np.zeros((1, 6), np.int32), require_triplet=False)
+        match[name] = int(v.match[0, j])
+    assert match["as seen"] >= 0
+    assert match["kinect"] == -1
+    assert match["stereo"] == match["as seen"]
