@@ -54,7 +54,8 @@ from _common import git_info, parse_overrides, print_table, results_name, write_
 
 def paper_settings(params):
     """The baseline: the paper's evaluation and decision rules only, on the same index and transforms (none of our
-    additions: no free space, explained fraction, direction support, twin probe or decision over refined poses)."""
+    additions: no free space, explained fraction, direction support, twin probe, decision over refined poses or lower
+    projection share for noisy sensors)."""
     return replace(
         params, max_sphere_gap_m=1.0, gap_tolerance_m=1e3, extent_tolerance_m=1e3, min_explained_fraction=0.0,
         min_explained_known_fraction=0.0,

@@ -796,9 +796,10 @@ def test_matching_params_with_changes_named_fields_and_refuses_the_rest():
 
 def test_a_noisy_sensor_matches_planes_with_fewer_samples_on_the_map_plane():
     # Far planes of a noisy (stereo) sensor come out tilted by more than the projection inlier distance across
-    # their extent. A wall of the view with 7 of its 12 verification samples moved 12 cm off it (5 of 12 within
-    # the 8 cm of the projection test) no longer matches at the true pose with the default ratio (0.5), and does
-    # with the ratio a sensor noisier than 2 cm at 3 m gets (0.3); a Kinect-class sensor keeps 0.5.
+    # their extent. The view's largest plane with 7 of its 12 verification samples moved 12 cm off it (5 of 12
+    # within the 8 cm of the projection test) no longer matches at the true pose with the default share (0.5), and
+    # matches the same map plane with the share a sensor noisier than 2 cm at 3 m gets (0.3); a Kinect-class
+    # sensor keeps 0.5.
     from reloc.config import Config
     from reloc.matching.params import scaled_to_sensor
 
