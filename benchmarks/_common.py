@@ -20,8 +20,6 @@ import dataclasses
 import datetime as _dt
 import json
 import math
-import os
-import platform
 import subprocess
 import sys
 from pathlib import Path
@@ -49,38 +47,12 @@ if str(REPO_ROOT) not in sys.path[:1]:
     sys.path.insert(0, str(REPO_ROOT))
 
 
-def _cpu_model() -> str:
-    try:
-        with open("/proc/cpuinfo", encoding="utf-8") as fh:
-            for line in fh:
-                if line.lower().startswith("model name"):
-                    return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return platform.processor() or platform.machine() or "unknown"
-
-
 def machine_info() -> dict:
-    """CPU model, logical cores (total and usable by this process), OS and library versions."""
-    try:
-        usable = len(os.sched_getaffinity(0))
-    except AttributeError:  # not on Linux
-        usable = os.cpu_count()
-    info = {
-        "cpu_model": _cpu_model(),
-        "cores": os.cpu_count(),
-        "cores_usable": usable,
-        "platform": platform.platform(),
-        "python": platform.python_version(),
-        "numpy": np.__version__,
-    }
-    try:
-        import numba
+    """CPU (model name, family / model numbers, LLVM's name for its microarchitecture), cores, OS and versions:
+    :func:`reloc.profiling.machine_info`."""
+    from reloc.profiling import machine_info as info
 
-        info["numba"] = numba.__version__
-    except ImportError:
-        pass
-    return info
+    return info()
 
 
 def code_root() -> Path | None:

@@ -15,6 +15,7 @@ from __future__ import annotations
 import contextlib
 import json
 import os
+import platform
 import threading
 import time
 from typing import Iterator
@@ -23,7 +24,7 @@ import numpy as np
 
 from reloc.atomic import atomic_write_text
 
-__all__ = ["Profiler", "StageStats", "NULL_PROFILER"]
+__all__ = ["Profiler", "StageStats", "NULL_PROFILER", "machine_info"]
 
 
 class StageStats:
@@ -239,3 +240,48 @@ class Profiler:
 
 
 NULL_PROFILER = Profiler(enabled=False)
+
+
+def _cpuinfo() -> dict[str, str]:
+    """The first processor's fields of ``/proc/cpuinfo`` (empty where there is none)."""
+    fields: dict[str, str] = {}
+    try:
+        with open("/proc/cpuinfo", encoding="utf-8") as fh:
+            for line in fh:
+                if not line.strip():
+                    break
+                key, _, value = line.partition(":")
+                fields[key.strip().lower()] = value.strip()
+    except OSError:
+        pass
+    return fields
+
+
+def machine_info() -> dict:
+    """What a time depends on: the CPU (its model name, and its family / model numbers and the microarchitecture
+    LLVM compiles the numba kernels for, since VMs of one model name differ by a CPU generation), logical cores
+    (total and usable by this process), OS and library versions."""
+    cpu = _cpuinfo()
+    try:
+        usable = len(os.sched_getaffinity(0))
+    except AttributeError:  # not on Linux
+        usable = os.cpu_count()
+    info = {
+        "cpu_model": cpu.get("model name") or platform.processor() or platform.machine() or "unknown",
+        "cpu_family": cpu.get("cpu family"),
+        "cpu_model_number": cpu.get("model"),
+        "cores": os.cpu_count(),
+        "cores_usable": usable,
+        "platform": platform.platform(),
+        "python": platform.python_version(),
+        "numpy": np.__version__,
+    }
+    try:
+        import llvmlite.binding as llvm
+        import numba
+
+        info["numba"] = numba.__version__
+        info["llvm_host_cpu"] = llvm.get_host_cpu_name()
+    except ImportError:
+        pass
+    return info

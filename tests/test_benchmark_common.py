@@ -180,3 +180,21 @@ def test_the_accuracy_benchmark_refuses_a_missing_prepared_suite_before_measurin
     assert f"--prepared: {tmp_path / 'extraction_stereo'} holds no prepared suite" in done.stderr, done.stderr
 
 
+
+
+def test_the_machine_record_names_the_cpu_generation_the_kernels_are_compiled_for():
+    # VMs that all call their CPU "AMD EPYC" differ by a generation (family 25 and 26), and extraction times by a
+    # third between them: the record keeps the family and LLVM's name for the microarchitecture.
+    import llvmlite.binding as llvm
+
+    from _common import machine_info
+
+    info = machine_info()
+    assert info["llvm_host_cpu"] == llvm.get_host_cpu_name()
+    assert info["cores"] >= 1 and 1 <= info["cores_usable"] <= info["cores"]
+    cpuinfo = Path("/proc/cpuinfo")
+    if cpuinfo.exists():
+        first = cpuinfo.read_text(encoding="utf-8").split("\n\n")[0]
+        fields = dict((k.strip().lower(), v.strip()) for k, _, v in (ln.partition(":") for ln in first.splitlines()))
+        assert info["cpu_model"] == fields.get("model name", info["cpu_model"])
+        assert info["cpu_family"] == fields.get("cpu family")

@@ -26,7 +26,7 @@ from dataclasses import dataclass, field
 import click
 import numpy as np
 
-from reloc.profiling import Profiler
+from reloc.profiling import Profiler, machine_info
 
 __all__ = ["profile", "SequentialPipeline", "TABLE8_ROWS", "PAPER_TABLE8_MS", "table8", "profile_report",
            "format_report", "EXTRACT_STAGES", "RELOC_STAGES"]
@@ -255,22 +255,6 @@ def format_report(report: dict) -> str:
     return "\n".join(lines)
 
 
-def _machine() -> dict:
-    import os
-    import platform
-
-    cpu = platform.processor() or platform.machine()
-    try:
-        with open("/proc/cpuinfo", encoding="utf-8") as fh:
-            cpu = next((ln.split(":", 1)[1].strip() for ln in fh if ln.lower().startswith("model name")), cpu)
-    except OSError:
-        pass
-    import numba
-
-    return {"cpu_model": cpu, "cores": os.cpu_count(), "platform": platform.platform(),
-            "python": platform.python_version(), "numpy": np.__version__, "numba": numba.__version__}
-
-
 def _load_average() -> float | None:
     import os
 
@@ -404,7 +388,7 @@ def profile(camera, map_spec, frames, window, mode, warmup_frames, size, json_pa
         command={"camera": camera, "map": map_spec, "frames": frames, "window": k, "mode": mode,
                  "warmup_frames": n_warm, "size": size, "config_file": config_path},
         run=run, map={"planes": len(map_planes), "load_and_index_s": map_s},
-        compile=compile_info, machine=_machine(), date=time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
+        compile=compile_info, machine=machine_info(), date=time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
         config=config_as_dict(cfg),
     )
     click.echo(format_report(report))
