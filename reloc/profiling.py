@@ -284,4 +284,30 @@ def machine_info() -> dict:
         info["llvm_host_cpu"] = llvm.get_host_cpu_name()
     except ImportError:
         pass
+    info["blas_core"] = _openblas_core()
     return info
+
+
+def _openblas_core() -> str | None:
+    """The kernels OpenBLAS (NumPy's, loaded in this process) picked for this CPU, or None when that cannot be
+    told: a CPU it does not know gets older kernels, whose sums differ in the last bits."""
+    import ctypes
+
+    try:
+        with open("/proc/self/maps", encoding="utf-8") as fh:
+            libs = {ln.split()[-1] for ln in fh if "openblas" in ln.lower() and ln.rstrip().endswith(".so")}
+    except OSError:
+        return None
+    for lib in sorted(libs):
+        try:
+            dll = ctypes.CDLL(lib)
+        except OSError:
+            continue
+        for symbol in ("scipy_openblas_get_corename64_", "scipy_openblas_get_corename", "openblas_get_corename64_",
+                       "openblas_get_corename"):
+            fn = getattr(dll, symbol, None)
+            if fn is not None:
+                fn.restype = ctypes.c_char_p
+                name = fn()
+                return name.decode("ascii", "replace") if name else None
+    return None

@@ -198,3 +198,19 @@ def test_the_machine_record_names_the_cpu_generation_the_kernels_are_compiled_fo
         fields = dict((k.strip().lower(), v.strip()) for k, _, v in (ln.partition(":") for ln in first.splitlines()))
         assert info["cpu_model"] == fields.get("model name", info["cpu_model"])
         assert info["cpu_family"] == fields.get("cpu family")
+
+
+def test_the_machine_record_names_the_blas_kernels_numpy_runs():
+    # OpenBLAS picks its kernels by CPU and falls back to older ones for a CPU it does not know; the products differ
+    # in their last bits, and the ground-truth plane suite's outcomes with them (docs/BENCHMARKS.md).
+    import os
+    import subprocess
+
+    from _common import machine_info
+
+    if machine_info()["blas_core"] is None:
+        pytest.skip("NumPy's BLAS here is not an OpenBLAS that names its kernels")
+    code = "from reloc.profiling import machine_info; print(machine_info()['blas_core'])"
+    env = dict(os.environ, OPENBLAS_CORETYPE="Sandybridge")
+    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "Sandybridge"
