@@ -258,9 +258,10 @@ def _cpuinfo() -> dict[str, str]:
 
 
 def machine_info() -> dict:
-    """What a time depends on: the CPU (its model name, and its family / model numbers and the microarchitecture
-    LLVM compiles the numba kernels for, since VMs of one model name differ by a CPU generation), logical cores
-    (total and usable by this process), OS and library versions."""
+    """What a time or a last bit depends on: the CPU (its model name, and its family / model numbers and the
+    microarchitecture LLVM compiles the numba kernels for, since VMs of one model name differ by a CPU generation),
+    logical cores (total and usable by this process), OS and library versions, and the kernels NumPy's OpenBLAS
+    picked (``blas_core``, None when that cannot be told)."""
     cpu = _cpuinfo()
     try:
         usable = len(os.sched_getaffinity(0))
@@ -295,9 +296,10 @@ def _openblas_core() -> str | None:
 
     try:
         with open("/proc/self/maps", encoding="utf-8") as fh:
-            libs = {ln.split()[-1] for ln in fh if "openblas" in ln.lower() and ln.rstrip().endswith(".so")}
+            paths = {ln.split()[-1] for ln in fh if "/" in ln}
     except OSError:
         return None
+    libs = {p for p in paths if "openblas" in os.path.basename(p).lower() and ".so" in os.path.basename(p)}
     for lib in sorted(libs):
         try:
             dll = ctypes.CDLL(lib)

@@ -180,11 +180,9 @@ def test_the_accuracy_benchmark_refuses_a_missing_prepared_suite_before_measurin
     assert f"--prepared: {tmp_path / 'extraction_stereo'} holds no prepared suite" in done.stderr, done.stderr
 
 
-
-
 def test_the_machine_record_names_the_cpu_generation_the_kernels_are_compiled_for():
-    # VMs that all call their CPU "AMD EPYC" differ by a generation (family 25 and 26), and extraction times by a
-    # third between them: the record keeps the family and LLVM's name for the microarchitecture.
+    # VMs that all call their CPU "AMD EPYC" differ by a generation, and extraction times by about 40 % between
+    # them: the record keeps the family and LLVM's name for the microarchitecture.
     import llvmlite.binding as llvm
 
     from _common import machine_info
