@@ -3,7 +3,8 @@
 Scenes: living room, office, apartment, corridor, the identical meeting rooms and the symmetric room. Per scene: a
 map from a robot tour and a hand-held walk (3,000 frames each by default, keyframes by motion); positive queries
 from other robot-like and hand-held trajectories (submaps of ``--window`` frames 3 apart, the ground-truth poses
-standing for odometry); 20 negative queries from the other scenes. Planes come from extraction on every frame
+standing for odometry, grown back in time up to ``--max-window`` frames while a submap cannot pin a pose:
+``reloc.mapping.grow_submap``); 20 negative queries from the other scenes. Planes come from extraction on every frame
 (320x240 Kinect-class camera for the kinect and ToF noise models, the 640x400 OAK-D class camera for stereo), once
 per noise model, with extraction's noise law set to the simulated sensor's; the simulator's ground-truth planes run
 as a second source (matching alone).
@@ -109,6 +110,10 @@ def main() -> int:
     ap.add_argument("--queries", type=int, default=10, help="Positive queries per trajectory kind and scene.")
     ap.add_argument("--negatives", type=int, default=20, help="Negative queries per scene.")
     ap.add_argument("--window", type=int, default=40, help="Frames per submap.")
+    ap.add_argument("--max-window", type=int, default=None,
+                    help="A submap that cannot pin a pose (too few planes, or too little area along its weakest "
+                         "direction) grows back in time, half a window at a time, up to this many frames (default "
+                         "3 x --window; 0 = windows do not grow, the suite before 2026-11-28).")
     ap.add_argument("--map-frames", type=int, default=3000, help="Frames per mapping trajectory.")
     ap.add_argument("--scenes", default=None, help="Scenes (comma separated; default: the six of the suite).")
     ap.add_argument("--no-oracle", action="store_true", help="Skip the ground-truth plane source.")
@@ -136,6 +141,8 @@ def main() -> int:
                          "instead of minutes): for comparing matchers (--variant). The suite and every extraction "
                          "and fusion parameter (defaults, --set, --mapping-set) must be those it was saved with.")
     args = ap.parse_args()
+    if args.max_window is not None and 0 < args.max_window < args.window or (args.max_window or 0) < 0:
+        ap.error(f"--max-window: expected 0 or at least --window ({args.window}), got {args.max_window}")
 
     from reloc._numba import warm_up
     from reloc.evaluation.metrics import summarize
@@ -174,6 +181,7 @@ def main() -> int:
                "paper settings": paper_settings(ours), **variants}
     base = EvalSpec(scenes=scenes, width=320, height=240, queries_per_kind=args.queries,
                     negatives_per_scene=args.negatives, window_frames=args.window,
+                    window_max_frames=3 * args.window if args.max_window is None else args.max_window,
                     query_spacing_frames=max(60, 3 * args.window + 30),
                     map_trajectories=(("robot", args.map_frames), ("handheld", args.map_frames)),
                     query_seed=args.query_seed, map_seed=args.map_seed)
@@ -213,9 +221,10 @@ def main() -> int:
             print(f"{source}/{noise}: saved the prepared suite to {saved.parent}")
         # The windows' odometry is the ground truth here, so every frame the odometry check leaves out is a loss.
         left_out = {name: sum(q.frames_left_out for q in qs) for name, qs in prepared.queries.items()}
-        n_windows = sum(len(qs) for qs in prepared.queries.values())
+        sizes = [q.window_frames or spec.window_frames for qs in prepared.queries.values() for q in qs]
+        grown = sum(s > spec.window_frames for s in sizes)
         print(f"{source}/{noise}: odometry check left out {sum(left_out.values())} of "
-              f"{n_windows * spec.window_frames} window frames (exact odometry) {left_out}")
+              f"{sum(sizes)} window frames (exact odometry) {left_out}; {grown} of {len(sizes)} windows grew")
         # How well the maps' planes fit their own samples (a plane fused from two surfaces shows here).
         consistency = {name: m.consistency() for name, m in prepared.maps.items()}
         print(f"{source}/{noise}: map planes with over {BENT_FRACTION:.0%} of their samples more than "

@@ -235,6 +235,27 @@ class MappingConfig(_Section):
         3, ge=1, description="Map planes seen in fewer keyframes are dropped (mostly facets of curved clutter)."
     )
     submap_window_frames: int = Field(1, ge=1, description="K: frames fused into a submap with their relative poses.")
+    submap_max_window_frames: int = Field(
+        0, ge=0, description="When the submap of K frames cannot pin a pose (the submap_grow_* tests below), the "
+        "window grows back in time, K/2 frames at a time, up to this many frames (0 = the window stays at K). A view "
+        "along a corridor cannot tell where along it it is; the frames before, which saw the door it passed, can.",
+    )
+    submap_grow_min_planes: int = Field(
+        6, ge=0, description="Grow: the submap has fewer planes of at least submap_grow_min_area_m2 than this..."
+    )
+    submap_grow_min_support_m2: float = Field(
+        1.0, ge=0, description="...or less area of them along the weakest direction of the translation they fix "
+        "(normals within 60 deg of it).",
+    )
+    submap_grow_min_area_m2: float = Field(0.3, ge=0, description="Planes at least this large count in those tests.")
+
+    @model_validator(mode="after")
+    def _check_window(self) -> "MappingConfig":
+        if 0 < self.submap_max_window_frames < self.submap_window_frames:
+            raise ValueError("submap_max_window_frames: expected 0 (the window does not grow) or at least "
+                             f"submap_window_frames ({self.submap_window_frames}), got "
+                             f"{self.submap_max_window_frames}")
+        return self
     free_space_voxel_m: float = Field(
         0.15, ge=0, description="Voxel edge of the map's known free space carved along depth rays (0 = none)."
     )

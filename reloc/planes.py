@@ -18,6 +18,7 @@ __all__ = [
     "orient_toward",
     "plane_from_points_exact",
     "point_plane_distance",
+    "weakest_direction_support",
 ]
 
 
@@ -115,3 +116,16 @@ def point_plane_distance(points: np.ndarray, plane: np.ndarray) -> np.ndarray:
 def angle_window_ok(angle_deg: float, lo_deg: float, hi_deg: float) -> bool:
     """True when ``lo <= angle <= hi`` (helper for the triplet orthogonality window)."""
     return lo_deg <= angle_deg <= hi_deg and math.isfinite(angle_deg)
+
+
+def weakest_direction_support(normals: np.ndarray, areas: np.ndarray) -> tuple[np.ndarray, float]:
+    """The direction along which planes (unit ``normals`` (N, 3), ``areas`` (N,) in m^2, N >= 1) pin a translation
+    least, and the area that pins it there.
+
+    The direction is the eigenvector of ``sum a n n^T`` with the smallest eigenvalue, as in ICP degeneracy analysis;
+    a plane supports it when its normal is within 60 degrees of it. A corridor view (floor, ceiling, two walls and
+    one door jamb) is pinned along the corridor by the jamb alone. Returns ``(direction (3,), area)``.
+    """
+    vals, vecs = np.linalg.eigh((normals * areas[:, None]).T @ normals)
+    e = vecs[:, 0]
+    return e, float(areas[np.abs(normals @ e) >= 0.5].sum())

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 import sim
-from reloc.evaluation.synthetic import furnished_room, look_at, view_planes
+from reloc.evaluation.synthetic import Rect, box, furnished_room, look_at, view_planes
 from reloc.mapping import (
     MapBuilder,
     MapFileError,
@@ -18,12 +18,14 @@ from reloc.mapping import (
     PlaneMap,
     build_map,
     build_submap,
+    grow_submap,
     load_map,
     odometry_consistent_frames,
     oracle_source,
     plane_fit_from_stats,
     save_map,
     select_keyframes,
+    submap_constrained,
 )
 from reloc.mapping.plane_map import MAP_FORMAT_VERSION
 from reloc.planes import plane_errors
@@ -151,6 +153,57 @@ def test_odometry_check_leaves_out_a_frame_whose_odometry_is_off():
         MappingParams(submap_check_sigmas=-1.0)
     with pytest.raises(ValueError, match=r"submap_check_fraction: expected a fraction in \[0, 1\]"):
         MappingParams(submap_check_fraction=1.5)
+
+
+def _corridor_walk(n: int):
+    """A 2 m wide, 40 m long corridor with one cabinet (1.0 x 0.8 x 1.5 m) by its wall at x = 6, and a camera
+    walking along it past the cabinet, looking ahead and to the left: the first frames see the cabinet, the last
+    only floor, ceiling and the two walls."""
+    length = 40.0
+    rects = [Rect((length / 2, 1.0, 0.0), (0, 0, 1), (1, 0, 0), length / 2, 1.0),
+             Rect((length / 2, 1.0, 2.5), (0, 0, -1), (1, 0, 0), length / 2, 1.0),
+             Rect((length / 2, 0.0, 1.25), (0, 1, 0), (-1, 0, 0), length / 2, 1.25),
+             Rect((length / 2, 2.0, 1.25), (0, -1, 0), (1, 0, 0), length / 2, 1.25)]
+    rects += box((6.0, 1.6), (1.0, 0.8, 1.5))
+    Ts = [look_at((2.0 + 0.25 * k, 1.0, 1.2), (6.0 + 0.25 * k, 1.6, 1.0)) for k in range(n)]
+    return Ts, [view_planes(rects, T) for T in Ts]
+
+
+def test_a_submap_that_cannot_pin_a_pose_grows_back_in_time():
+    Ts, sets = _corridor_walk(40)
+    params = MappingParams()
+    newest = build_submap(sets[-10:], Ts[-10:], params)
+    assert len(newest) == 4  # floor, ceiling, two walls: nothing fixes where along the corridor
+    assert submap_constrained(newest, params) == (False, "4 planes of at least 0.3 m^2 (needs 6)")
+    assert submap_constrained(newest, params.with_(submap_grow_min_planes=4)) == (
+        False, "0.00 m^2 along its weakest direction (needs 1.0)")
+    asked = []
+
+    def fetch(k):
+        asked.append(k)
+        return sets[-k:], Ts[-k:]
+
+    stats = {}
+    sub, used = grow_submap(fetch, 10, 40, params, stats)
+    # Half the first window at a time, until the cabinet's faces are in: the one facing back along the corridor
+    # (1.2 m^2) pins the translation along it.
+    assert asked == [10, 15, 20, 25, 30, 35] and used == 35 and stats == {"frames_left_out": 0, "window_frames": 35}
+    assert submap_constrained(sub, params) == (True, "")
+    world = sub.transformed(Ts[-1], "map")
+    back = np.flatnonzero(world.normals[:, 0] < -0.99)
+    assert len(back) == 1 and abs(world.areas[back[0]] - 1.2) < 0.05 and abs(world.offsets[back[0]] - 5.5) < 1e-9
+    ref = build_submap(sets[-35:], Ts[-35:], params)
+    np.testing.assert_allclose(sub.offsets, ref.offsets, atol=1e-12)
+    # At most `most` frames, or as far as the history goes; a constrained window does not grow.
+    asked.clear()
+    assert grow_submap(fetch, 10, 22, params)[1] == 22 and asked == [10, 15, 20, 22]
+    assert grow_submap(lambda k: (sets[-min(k, 12):], Ts[-min(k, 12):]), 10, 40, params)[1] == 12
+    asked.clear()
+    assert grow_submap(fetch, 40, 80, params)[1] == 40 and asked == [40]
+    with pytest.raises(ValueError, match="first, most"):
+        grow_submap(fetch, 10, 5, params)
+    with pytest.raises(ValueError, match="submap_max_window_frames: expected 0"):
+        MappingParams(submap_window_frames=10, submap_max_window_frames=5)
 
 
 def test_map_round_trip(tmp_path, living_map):

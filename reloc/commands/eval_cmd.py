@@ -15,6 +15,9 @@ import click
 @click.option("--negatives", type=click.IntRange(min=0), default=20, show_default=True,
               help="Negative queries per scene (taken from the other scenes; the paper uses 20).")
 @click.option("--window", type=click.IntRange(min=1), default=40, show_default=True, help="Frames per submap.")
+@click.option("--max-window", type=click.IntRange(min=0), default=None,
+              help="A submap that cannot pin a pose grows back in time up to this many frames (0 = windows do not "
+                   "grow; default 3 x --window, with --quick 0).")
 @click.option("--map-frames", type=click.IntRange(min=50), default=3000, show_default=True,
               help="Frames of each mapping trajectory (a robot tour and a hand-held walk).")
 @click.option("--noise", type=click.Choice(["none", "stereo", "kinect", "tof"]), default="kinect", show_default=True)
@@ -45,8 +48,8 @@ import click
               help="With --explain: the scene whose map the query is relocalized in (a negative, when not the "
                    "query's own).")
 @click.option("--quiet", is_flag=True, help="No progress bar.")
-def eval_cmd(scenes, source, queries, negatives, window, map_frames, noise, query_seed, map_seed, ablation, quick,
-             config_path, json_path, save_prepared, prepared_dir, explain, explain_map, quiet):
+def eval_cmd(scenes, source, queries, negatives, window, max_window, map_frames, noise, query_seed, map_seed,
+             ablation, quick, config_path, json_path, save_prepared, prepared_dir, explain, explain_map, quiet):
     """Relocalization accuracy like the paper's Table 1 (per scene: TP, TN, FP, FN, P, R, median pose errors, time).
 
     Positives come from trajectories of each scene that were not used to build its map; negatives from the other
@@ -89,6 +92,9 @@ def eval_cmd(scenes, source, queries, negatives, window, map_frames, noise, quer
     if unknown:
         raise click.BadParameter(f"unknown scene(s) {unknown}; expected some of {', '.join(SCENES)}",
                                  param_hint="--scenes")
+    if max_window and max_window < window:
+        raise click.BadParameter(f"expected 0 or at least --window ({window}), got {max_window}",
+                                 param_hint="--max-window")
     if quick:
         spec = quick_spec(plane_source=source, noise=noise)
         if scenes:
@@ -96,8 +102,11 @@ def eval_cmd(scenes, source, queries, negatives, window, map_frames, noise, quer
     else:
         spec = EvalSpec(scenes=names, plane_source=source, noise=noise, queries_per_kind=queries,
                         negatives_per_scene=negatives, window_frames=window,
+                        window_max_frames=3 * window if max_window is None else max_window,
                         query_spacing_frames=max(60, 3 * window + 30),
                         map_trajectories=(("robot", map_frames), ("handheld", map_frames)))
+    if quick and max_window is not None:
+        spec = replace(spec, window_max_frames=max_window)
     seeds = {k: v for k, v in (("query_seed", query_seed), ("map_seed", map_seed)) if v is not None}
     spec = replace(spec, **seeds)
     extraction = None

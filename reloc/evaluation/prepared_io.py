@@ -59,7 +59,7 @@ def save_prepared(directory, prepared, meta: dict | None = None) -> Path:
             arrays[f"q{i}_T_world_cam"] = np.asarray(q.T_world_cam, dtype=np.float64)
             listed.append({"scene": q.scene, "name": q.name, "ambiguous": bool(q.ambiguous), "frame": q.submap.frame,
                            "timings_ms": {k: float(v) for k, v in q.timings_ms.items()},
-                           "frames_left_out": int(q.frames_left_out)})
+                           "frames_left_out": int(q.frames_left_out), "window_frames": int(q.window_frames)})
         with atomic_write(directory / "queries" / f"{name}.npz", "wb") as fh:
             np.savez_compressed(fh, **arrays)
         index["scenes"][name] = {"map_seconds": float(prepared.map_seconds[name]), "queries": listed}
@@ -136,7 +136,8 @@ def load_prepared(directory):
                 if T.shape != (4, 4):
                     raise ValueError(f"query {i}: T_world_cam of shape {T.shape}, expected (4, 4)")
                 qs.append(Query(str(q["scene"]), str(q["name"]), T, submap, bool(q["ambiguous"]),
-                                {str(k): float(v) for k, v in q["timings_ms"].items()}, int(q["frames_left_out"])))
+                                {str(k): float(v) for k, v in q["timings_ms"].items()}, int(q["frames_left_out"]),
+                                int(q.get("window_frames", 0))))
         except FileNotFoundError:
             raise PreparedSuiteError(qpath, "missing") from None
         except (OSError, KeyError, TypeError, ValueError, EOFError, zipfile.BadZipFile, zlib.error) as exc:

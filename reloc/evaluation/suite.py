@@ -3,9 +3,10 @@
 For each scene: a map from mapping trajectories (a robot tour and a hand-held walk, seed ``map_seed``); positive
 queries from other trajectories of the same scene (robot-like and hand-held, seed ``query_seed``), each a submap
 of ``window_frames`` frames ``window_stride`` apart fused with their relative poses (the ground-truth poses stand
-for odometry); negative queries: ``negatives_per_scene`` queries of the other scenes (the paper adds 20 per
-scene). Every query carries its ground truth and an ambiguity label (:mod:`reloc.evaluation.ambiguity`);
-:mod:`reloc.evaluation.metrics` turns results into TP / TN / FP / FN.
+for odometry), grown back in time up to ``window_max_frames`` frames while it cannot pin a pose
+(:func:`reloc.mapping.grow_submap`); negative queries: ``negatives_per_scene`` queries of the other scenes (the
+paper adds 20 per scene). Every query carries its ground truth and an ambiguity label
+(:mod:`reloc.evaluation.ambiguity`); :mod:`reloc.evaluation.metrics` turns results into TP / TN / FP / FN.
 
 The steps are public (:func:`build_scene_map`, :func:`make_queries`, :func:`evaluate_queries`); :func:`run_suite`
 and :func:`run_ablation` compose them.
@@ -22,7 +23,7 @@ import numpy as np
 
 from reloc.evaluation.ambiguity import is_ambiguous
 from reloc.evaluation.metrics import Outcome, Summary, classify, identifiable, summarize
-from reloc.mapping import MappingParams, PlaneMap, build_map, build_submap
+from reloc.mapping import MappingParams, PlaneMap, build_map, grow_submap
 from reloc.matching import MatchingParams, Relocalizer, ablation_params, scaled_to_sensor
 from reloc.planeset import PlaneSet
 from reloc.transforms import pose_error
@@ -51,6 +52,7 @@ class EvalSpec:
     query_spacing_frames: int = 150
     window_frames: int = 40
     window_stride: int = 3
+    window_max_frames: int = 0  # 0: every window has window_frames frames; else it may grow to this many
     negatives_per_scene: int = 20
     plane_source: str = "oracle"
 
@@ -60,6 +62,9 @@ class EvalSpec:
         if self.window_frames < 1 or self.window_stride < 1:
             raise ValueError(f"window_frames, window_stride: expected >= 1, got {self.window_frames}, "
                              f"{self.window_stride}")
+        if self.window_max_frames and self.window_max_frames < self.window_frames:
+            raise ValueError(f"window_max_frames: expected 0 or at least window_frames ({self.window_frames}), got "
+                             f"{self.window_max_frames}")
         if self.query_spacing_frames < self.window_stride * (self.window_frames - 1) + 1:
             raise ValueError("query_spacing_frames: expected at least the window span "
                              f"({self.window_stride * (self.window_frames - 1) + 1}), got {self.query_spacing_frames}")
@@ -74,6 +79,7 @@ class Query:
     ambiguous: bool
     timings_ms: dict = field(default_factory=dict)  # extraction (mean per frame) and submap building
     frames_left_out: int = 0  # window frames the odometry check left out of the submap
+    window_frames: int = 0  # frames of its window (0: not recorded, the spec's window_frames)
 
 
 @dataclass
@@ -156,30 +162,67 @@ def build_scene_map(scene, spec: EvalSpec, source: Callable, mapping: MappingPar
     return build_map(frames, source, mapping, meta=meta)
 
 
+class _QueryWindow:
+    """The frames of one query's window, newest last, rendered and their planes extracted only when asked for:
+    the first ``window_frames`` with the query's seed (as before windows grew), each older chunk with its own."""
+
+    def __init__(self, scene, spec: EvalSpec, source: Callable, poses: np.ndarray, end: int, seed: int):
+        self.scene, self.spec, self.source, self.poses, self.seed = scene, spec, source, poses, seed
+        self.idx = np.arange(end - spec.window_stride * (spec.window_frames - 1), end + 1, spec.window_stride)
+        self.frames: list = []
+        self.sets: list = []
+        self.chunks = 0
+        self.extract_ms = 0.0
+        self.render_ms = 0.0
+
+    def _add(self, idx: np.ndarray, seed: int) -> None:
+        t0 = time.perf_counter()
+        frames = _frames(self.scene, self.poses[idx], self.spec, seed)
+        self.render_ms += (time.perf_counter() - t0) * 1e3
+        t0 = time.perf_counter()
+        sets = [self.source(f) for f in frames]
+        self.extract_ms += (time.perf_counter() - t0) * 1e3
+        self.frames, self.sets = frames + self.frames, sets + self.sets
+
+    def fetch(self, k: int) -> tuple[list, list]:
+        if not self.frames:
+            self._add(self.idx, self.seed)
+        stride = self.spec.window_stride
+        while len(self.sets) < k and self.idx[0] - stride >= 0:
+            more = np.arange(self.idx[0] - min(k - len(self.sets), self.idx[0] // stride) * stride, self.idx[0],
+                             stride)
+            self.chunks += 1
+            self._add(more, self.seed + 50_000 * self.chunks)
+            self.idx = np.concatenate([more, self.idx])
+        k = min(k, len(self.sets))
+        return self.sets[-k:], [f.T_world_cam for f in self.frames[-k:]]
+
+
 def make_queries(scene, spec: EvalSpec, source: Callable, mapping: MappingParams | None = None) -> list[Query]:
-    """Positive queries of ``scene``: windows along query trajectories (not the mapping ones)."""
+    """Positive queries of ``scene``: windows along query trajectories (not the mapping ones), each grown back in
+    time while its submap cannot pin a pose when ``spec.window_max_frames`` allows (its ambiguity label is that of
+    the frames it ended with)."""
     from sim.trajectories import make_trajectory
 
     mapping = mapping or MappingParams()
     out = []
-    span = spec.window_stride * (spec.window_frames - 1)
+    most = max(spec.window_frames, spec.window_max_frames)
     for k, kind in enumerate(spec.query_kinds):
         n = spec.queries_per_kind * spec.query_spacing_frames
         poses = make_trajectory(kind, scene, n, spec.query_seed + k)
         for q in range(spec.queries_per_kind):
             end = (q + 1) * spec.query_spacing_frames - 1
-            idx = np.arange(end - span, end + 1, spec.window_stride)
-            frames = _frames(scene, poses[idx], spec, spec.query_seed * 7919 + 100 * k + q)
-            t0 = time.perf_counter()
-            sets = [source(f) for f in frames]
-            t1 = time.perf_counter()
+            window = _QueryWindow(scene, spec, source, poses, end, spec.query_seed * 7919 + 100 * k + q)
             stats: dict = {}
-            submap = build_submap(sets, [f.T_world_cam for f in frames], mapping, stats)
-            t2 = time.perf_counter()
+            t0 = time.perf_counter()
+            submap, used = grow_submap(window.fetch, spec.window_frames, most, mapping, stats)
+            t_all = (time.perf_counter() - t0) * 1e3
+            idx = window.idx[-used:]
             amb = is_ambiguous(scene, poses[idx], max_range_m=_max_range(spec.noise))
-            times = {"planes_per_frame": (t1 - t0) * 1e3 / len(frames), "submap": (t2 - t1) * 1e3}
+            times = {"planes_per_frame": window.extract_ms / len(window.sets),
+                     "submap": t_all - window.extract_ms - window.render_ms}
             out.append(Query(scene.name, f"{scene.name}/{kind}/{q}", poses[end], submap, amb, times,
-                             stats.get("frames_left_out", 0)))
+                             stats.get("frames_left_out", 0), used))
     return out
 
 

@@ -12,6 +12,8 @@
   relative (odometry) poses, in the frame of the latest camera, with its gravity. Older frames whose planes, moved
   with odometry, disagree with the newest frame's view of the same surfaces are left out first
   (:func:`odometry_consistent_frames`): a wrong odometry pose would otherwise make a rigidly displaced submap.
+- :func:`grow_submap`: a window that grows back in time while its submap cannot pin a pose
+  (:func:`submap_constrained`: too few large planes, or too little area along its weakest direction).
 """
 
 from __future__ import annotations
@@ -30,7 +32,7 @@ from reloc.planeset import PlaneSet, moved_geometry
 from reloc.transforms import check_transform, invert, rotation_angle_rad
 
 __all__ = ["MappingParams", "select_keyframes", "FreeSpace", "MapBuilder", "build_map", "build_submap", "SubmapBuilder",
-           "odometry_consistent_frames"]
+           "odometry_consistent_frames", "submap_constrained", "grow_submap"]
 
 # A plane of an older frame and one of the newest frame are views of one surface when their normals are within
 # this angle, the older plane's centroid within this distance of the newer plane, and at least half of the older
@@ -64,6 +66,10 @@ class MappingParams:
     submap_check_min_offset_m: float = 0.02
     submap_check_min_area_m2: float = 0.3
     submap_check_fraction: float = 0.34
+    submap_max_window_frames: int = 0
+    submap_grow_min_planes: int = 6
+    submap_grow_min_support_m2: float = 1.0
+    submap_grow_min_area_m2: float = 0.3
 
     def __post_init__(self) -> None:
         if self.keyframe_min_translation_m < 0 or self.keyframe_min_rotation_rad < 0:
@@ -77,8 +83,16 @@ class MappingParams:
                              f"{self.free_space_margin_m}, {self.free_space_pixel_stride}")
         if self.submap_window_frames < 1:
             raise ValueError(f"MappingParams.submap_window_frames: expected >= 1, got {self.submap_window_frames}")
+        if self.submap_max_window_frames and self.submap_max_window_frames < self.submap_window_frames:
+            raise ValueError("MappingParams.submap_max_window_frames: expected 0 (the window does not grow) or at "
+                             f"least submap_window_frames ({self.submap_window_frames}), got "
+                             f"{self.submap_max_window_frames}")
+        if self.submap_max_window_frames < 0 or self.submap_grow_min_planes < 0:
+            raise ValueError("MappingParams: submap_max_window_frames and submap_grow_min_planes must be >= 0, got "
+                             f"{self.submap_max_window_frames} and {self.submap_grow_min_planes}")
         for name in ("submap_check_sigmas", "submap_check_min_angle_rad", "submap_check_min_offset_m",
-                     "submap_check_min_area_m2", "submap_check_fraction"):
+                     "submap_check_min_area_m2", "submap_check_fraction", "submap_grow_min_support_m2",
+                     "submap_grow_min_area_m2"):
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v >= 0):
                 raise ValueError(f"MappingParams.{name}: expected a finite number >= 0, got {v!r}")
@@ -121,6 +135,10 @@ class MappingParams:
             submap_check_min_offset_m=m.submap_check_min_offset_m,
             submap_check_min_area_m2=m.submap_check_min_area_m2,
             submap_check_fraction=m.submap_check_fraction,
+            submap_max_window_frames=m.submap_max_window_frames,
+            submap_grow_min_planes=m.submap_grow_min_planes,
+            submap_grow_min_support_m2=m.submap_grow_min_support_m2,
+            submap_grow_min_area_m2=m.submap_grow_min_area_m2,
         )
 
 
@@ -432,6 +450,55 @@ def build_submap(
         tolerance = max((ps.gravity_tolerance_rad for ps in plane_sets if ps.gravity is not None), default=0.0)
     planes, _ = acc.to_planeset(gravity=gravity, min_observations=min_obs, gravity_tolerance_rad=tolerance)
     return replace(planes, viewpoints=views)
+
+
+def submap_constrained(submap: PlaneSet, params: MappingParams | None = None) -> tuple[bool, str]:
+    """Whether ``submap`` can pin a pose by itself: at least ``submap_grow_min_planes`` planes of at least
+    ``submap_grow_min_area_m2``, and of those at least ``submap_grow_min_support_m2`` along the weakest direction of
+    the translation they fix (:func:`reloc.planes.weakest_direction_support`). The matcher asks as much of the
+    planes it matches (five of them, 0.4 m^2 along the weakest direction), so a submap short of this is likely to be
+    rejected or, worse, to slide: a corridor view of floor, ceiling and two walls. Returns ``(ok, why not)``."""
+    from reloc.planes import weakest_direction_support
+
+    params = params or MappingParams()
+    large = np.flatnonzero(submap.areas >= params.submap_grow_min_area_m2)
+    if len(large) < max(params.submap_grow_min_planes, 1):
+        return False, (f"{len(large)} planes of at least {params.submap_grow_min_area_m2} m^2 (needs "
+                       f"{params.submap_grow_min_planes})")
+    _, support = weakest_direction_support(submap.normals[large], submap.areas[large])
+    if support < params.submap_grow_min_support_m2:
+        return False, (f"{support:.2f} m^2 along its weakest direction (needs {params.submap_grow_min_support_m2})")
+    return True, ""
+
+
+def grow_submap(fetch: Callable[[int], tuple[list[PlaneSet], list[np.ndarray]]], first: int, most: int,
+                params: MappingParams | None = None, stats: dict | None = None) -> tuple[PlaneSet, int]:
+    """The submap of the newest ``first`` frames of a window, grown back in time while it is not constrained
+    (:func:`submap_constrained`), ``first // 2`` frames (at least one) at a time, up to ``most`` frames or as far
+    as the history goes.
+
+    ``fetch(k)`` returns the plane sets and odometry poses of the newest ``k`` frames, oldest first (fewer when the
+    history is shorter). A view along a corridor, of floor, ceiling and two walls, cannot tell where along the
+    corridor it is; the frames before it, which saw the door it passed, can. Returns ``(submap, frames used)``;
+    ``stats`` (a dict) gets ``frames_left_out`` of the last build (:func:`build_submap`) and ``window_frames``.
+    """
+    params = params or MappingParams()
+    if first < 1 or most < first:
+        raise ValueError(f"first, most: expected 1 <= first <= most, got {first} and {most}")
+    k, step = first, max(1, first // 2)
+    while True:
+        sets, poses = fetch(k)
+        if not sets:
+            raise ValueError("fetch: returned no frames")
+        built: dict = {}
+        submap = build_submap(sets, poses, params, built)
+        if len(sets) < k or k >= most or submap_constrained(submap, params)[0]:
+            break
+        k = min(most, k + step)
+    if stats is not None:
+        stats["frames_left_out"] = stats.get("frames_left_out", 0) + built.get("frames_left_out", 0)
+        stats["window_frames"] = len(sets)
+    return submap, len(sets)
 
 
 class SubmapBuilder:

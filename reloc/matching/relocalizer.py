@@ -34,6 +34,7 @@ from reloc.matching.selection import (
     submap_triplets,
 )
 from reloc.matching.transform import rotation_from_normal_pairs, translation_from_offsets
+from reloc.planes import weakest_direction_support
 from reloc.planeset import PlaneSet
 from reloc.transforms import check_transform, transform_from_rotation_translation
 
@@ -182,10 +183,9 @@ def support_per_direction(planes: PlaneSet, match_row: np.ndarray, min_area_m2: 
     ``min_area_m2``, matched or not) along that same direction: evidence against the pose there, which the caller
     takes off the support.
 
-    The weakest direction is the eigenvector of ``sum a n n^T`` over the matched planes (area ``a``) with the
-    smallest eigenvalue, as in ICP degeneracy analysis; a plane supports it when its normal is within 60 degrees.
-    A corridor view (floor, ceiling, two walls and one door jamb) is pinned along the corridor by the jamb alone,
-    a few tenths of a square metre: one wrong match there would give a confident wrong pose. The caller compares
+    The weakest direction and its support are those of :func:`reloc.planes.weakest_direction_support` over the
+    matched planes. A corridor view is pinned along the corridor by a door jamb alone, a few tenths of a square
+    metre: one wrong match there would give a confident wrong pose. The caller compares
     the support less the area against with ``min_direction_support_m2`` (0.4 m^2: at 0.5 the relocalization suite
     rejected corridor views pinned by 0.41-0.48 m^2; accepted, the two of them with ToF noise came out 2 and 14 mm
     off). Against, in :meth:`Relocalizer.direction_support`: the planes the map hides from the submap's cameras
@@ -199,9 +199,7 @@ def support_per_direction(planes: PlaneSet, match_row: np.ndarray, min_area_m2: 
         return 0.0, 0.0
     n = planes.normals[js]
     a = planes.areas[js]
-    vals, vecs = np.linalg.eigh((n * a[:, None]).T @ n)
-    e = vecs[:, 0]
-    support = float(a[np.abs(n @ e) >= 0.5].sum())
+    e, support = weakest_direction_support(n, a)
     if against is None:
         return support, 0.0
     ks = np.flatnonzero(against & large)
