@@ -27,3 +27,19 @@ def write_office_sequence(out: Path, n_frames: int) -> Path:
                              height=120)
     write_sequence(frames, scene, out)
     return out
+
+
+def corridor_walk(n: int):
+    """A 2 m wide, 40 m long corridor with one cabinet (1.0 x 0.8 x 1.5 m) by its wall at x = 6, and a camera
+    walking along it past the cabinet, looking ahead and to the left: the first frames see the cabinet, the last
+    only floor, ceiling and the two walls."""
+    from reloc.evaluation.synthetic import Rect, box, look_at, view_planes
+
+    length = 40.0
+    rects = [Rect((length / 2, 1.0, 0.0), (0, 0, 1), (1, 0, 0), length / 2, 1.0),
+             Rect((length / 2, 1.0, 2.5), (0, 0, -1), (1, 0, 0), length / 2, 1.0),
+             Rect((length / 2, 0.0, 1.25), (0, 1, 0), (-1, 0, 0), length / 2, 1.25),
+             Rect((length / 2, 2.0, 1.25), (0, -1, 0), (1, 0, 0), length / 2, 1.25)]
+    rects += box((6.0, 1.6), (1.0, 0.8, 1.5))
+    Ts = [look_at((2.0 + 0.25 * k, 1.0, 1.2), (6.0 + 0.25 * k, 1.6, 1.0)) for k in range(n)]
+    return Ts, [view_planes(rects, T) for T in Ts]

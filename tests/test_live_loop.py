@@ -173,6 +173,33 @@ def test_loop_relocalizes_on_the_simulator_with_odometry_submaps(living_room_map
     json.dumps(d, allow_nan=False)
 
 
+def test_a_window_that_cannot_pin_a_pose_grows_when_a_relocalization_asks_for_it():
+    from helpers import corridor_walk
+    from reloc.config import config_from_dict
+    from reloc.live.factory import SubmapFuser
+    from reloc.mapping import MappingParams, build_submap
+
+    Ts, sets = corridor_walk(40)  # the newest frames see floor, ceiling and two walls; the oldest a cabinet too
+    fuser = SubmapFuser(MappingParams())
+    window = SubmapWindow(10, fuse=fuser, max_frames=40, grow=fuser.grow)
+    fixed = SubmapWindow(10, fuse=fuser)
+    for k, (planes, T) in enumerate(zip(sets, Ts)):
+        window.push(planes, T, k)
+        fixed.push(planes, T, k)
+    assert len(window) == 40 and len(fixed) == 10
+    assert len(fixed.build()) == 4 and fixed.last_frames == 10
+    grown = window.build()
+    assert window.last_frames == 35 and len(grown) == 6
+    np.testing.assert_allclose(grown.offsets, build_submap(sets[-35:], Ts[-35:], MappingParams()).offsets,
+                               atol=1e-12)
+    with pytest.raises(ValueError, match="grow: expected a callable"):
+        SubmapWindow(10, max_frames=40)
+    with pytest.raises(ValueError, match="max_frames: expected 0"):
+        SubmapWindow(10, max_frames=5, grow=fuser.grow)
+    cfg = config_from_dict({"mapping": {"submap_window_frames": 10, "submap_max_window_frames": 40}})
+    assert LiveParams.from_config(cfg).max_window_frames == 40
+
+
 def test_loop_without_odometry_uses_single_frame_submaps(living_room_map):
     map_planes, reloc = living_room_map
     src = sim_source(20)  # ground-truth poses are not odometry: "auto" ignores them

@@ -10,7 +10,8 @@ import numpy as np
 import pytest
 
 import sim
-from reloc.evaluation.synthetic import Rect, box, furnished_room, look_at, view_planes
+from helpers import corridor_walk
+from reloc.evaluation.synthetic import furnished_room, look_at, view_planes
 from reloc.mapping import (
     MapBuilder,
     MapFileError,
@@ -155,22 +156,8 @@ def test_odometry_check_leaves_out_a_frame_whose_odometry_is_off():
         MappingParams(submap_check_fraction=1.5)
 
 
-def _corridor_walk(n: int):
-    """A 2 m wide, 40 m long corridor with one cabinet (1.0 x 0.8 x 1.5 m) by its wall at x = 6, and a camera
-    walking along it past the cabinet, looking ahead and to the left: the first frames see the cabinet, the last
-    only floor, ceiling and the two walls."""
-    length = 40.0
-    rects = [Rect((length / 2, 1.0, 0.0), (0, 0, 1), (1, 0, 0), length / 2, 1.0),
-             Rect((length / 2, 1.0, 2.5), (0, 0, -1), (1, 0, 0), length / 2, 1.0),
-             Rect((length / 2, 0.0, 1.25), (0, 1, 0), (-1, 0, 0), length / 2, 1.25),
-             Rect((length / 2, 2.0, 1.25), (0, -1, 0), (1, 0, 0), length / 2, 1.25)]
-    rects += box((6.0, 1.6), (1.0, 0.8, 1.5))
-    Ts = [look_at((2.0 + 0.25 * k, 1.0, 1.2), (6.0 + 0.25 * k, 1.6, 1.0)) for k in range(n)]
-    return Ts, [view_planes(rects, T) for T in Ts]
-
-
 def test_a_submap_that_cannot_pin_a_pose_grows_back_in_time():
-    Ts, sets = _corridor_walk(40)
+    Ts, sets = corridor_walk(40)
     params = MappingParams()
     newest = build_submap(sets[-10:], Ts[-10:], params)
     assert len(newest) == 4  # floor, ceiling, two walls: nothing fixes where along the corridor

@@ -80,6 +80,38 @@ def test_locate_writes_one_line_per_query(office_sequence, tmp_path):
     assert sum(x["status"] == "relocalized" for x in lines) >= 2
 
 
+def test_locate_grows_a_window_that_cannot_pin_a_pose(office_sequence, tmp_path, capsys):
+    map_path = tmp_path / "m.npz"
+    assert main(["map", "build", str(office_sequence), "-o", str(map_path), "--quiet"]) == 0
+    from drivers.readers import open_sequence
+
+    seq = open_sequence(office_sequence)
+
+    def run(*extra):
+        results = tmp_path / "results.jsonl"
+        assert main(["locate", "--map", str(map_path), str(office_sequence), "--frames", "120:240", "--every", "30",
+                     "--window", "1", "--stride", "3", "--out", str(results), "--quiet", *extra]) == 0
+        return {x["frame"]: x for x in map(json.loads, results.read_text().splitlines())}
+
+    fixed, grown = run(), run("--max-window", "30")
+    # Single frames: at frame 120 no pose matches more than 4 planes (5 needed), frame 210 sees one plane.
+    statuses = [fixed[f]["status"] for f in (120, 150, 180, 210)]
+    assert statuses == ["rejected", "relocalized", "relocalized", "rejected"]
+    assert all(x["window_frames"] == 1 for x in fixed.values())
+    # Grown back in time (3 frames apart) where a frame cannot pin a pose, and then relocalized right.
+    assert [grown[f]["window_frames"] > 1 for f in (120, 150, 180, 210)] == [True, False, False, True]
+    assert all(x["window_frames"] <= 30 for x in grown.values())
+    for f, x in grown.items():
+        assert x["status"] == "relocalized", x["reason"]
+        t_err, r_err = pose_error(np.array(x["T_map_cam"]), seq.T_world_cam[f])
+        assert t_err < 0.1 and r_err < 1.0
+    assert {f: x["status"] for f, x in run("--max-window", "0").items()} == {f: x["status"] for f, x in fixed.items()}
+    capsys.readouterr()
+    assert main(["locate", "--map", str(map_path), str(office_sequence), "--window", "4", "--max-window", "2",
+                 "--out", str(tmp_path / "r.jsonl"), "--quiet"]) == 2
+    assert "expected 0 or at least the window (4 frames), got 2" in capsys.readouterr().err
+
+
 def test_locate_checks_each_query_at_the_sequences_own_pose(office_sequence, tmp_path, capsys):
     """--check-poses: the answer's error against the sequence's pose, and whether that pose is identifiable (the map
     confirms it as locate would accept it); every answered view here is. --explain writes each query's account,

@@ -14,6 +14,9 @@ from reloc.commands.map_cmd import SOURCES, config_sections, parse_frames, seque
 @click.option("--frames", "frames_spec", default=None, metavar="A:B", help="Query frames (a:b or one index).")
 @click.option("--window", type=click.IntRange(min=1), default=None,
               help="Frames fused into each submap (config mapping.submap_window_frames by default).")
+@click.option("--max-window", type=click.IntRange(min=0), default=None,
+              help="A submap that cannot pin a pose grows back in time up to this many frames (config "
+                   "mapping.submap_max_window_frames by default; 0 = the window does not grow).")
 @click.option("--stride", type=click.IntRange(min=1), default=1, show_default=True,
               help="Frames between the frames of a window.")
 @click.option("--every", type=click.IntRange(min=1), default=1, show_default=True, help="Query every n-th frame.")
@@ -28,16 +31,17 @@ from reloc.commands.map_cmd import SOURCES, config_sections, parse_frames, seque
               help="Also write to this text file why each query came out as it did: the poses weighed and each "
                    "submap plane's state under them (against the sequence's poses with --check-poses).")
 @click.option("--quiet", is_flag=True, help="No progress bar.")
-def locate(seq, map_path, out_path, frames_spec, window, stride, every, source, config_path, check_poses,
+def locate(seq, map_path, out_path, frames_spec, window, max_window, stride, every, source, config_path, check_poses,
            explain_path, quiet):
     """Relocalize frames of SEQ in the map: one JSON line per query frame.
 
     Each query is a submap of the last --window frames (--stride apart) ending at the query frame, fused with the
     sequence's poses as odometry (only relative poses are used; frames without a pose restart the window; frames
-    whose planes disagree with the query frame's are left out). A line holds the frame index, stamp_ns, status,
-    reason, T_map_cam (4x4 nested list, or null), score, the matched plane count, the window's frame count and how
-    many of them the odometry check left out, the counts of every stage and the milliseconds of every stage
-    (extraction and submap building included).
+    whose planes disagree with the query frame's are left out), grown back in time up to --max-window frames while
+    it cannot pin a pose (too few planes, or too little area along its weakest direction). A line holds the frame
+    index, stamp_ns, status, reason, T_map_cam (4x4 nested list, or null), score, the matched plane count, the
+    window's frame count and how many of them the odometry check left out, the counts of every stage and the
+    milliseconds of every stage (extraction and submap building included).
     A frame that cannot be read or processed gets a line with status "error"; the others go on.
 
     With --check-poses (for a sequence whose poses are ground truth in the map's frame, as when the map was built
@@ -59,13 +63,18 @@ def locate(seq, map_path, out_path, frames_spec, window, stride, every, source, 
     from reloc.config import load_config
     from reloc.evaluation.explain import explain_result
     from reloc.evaluation.metrics import identifiable as identifiable_at
-    from reloc.mapping import MappingParams, build_submap, load_map
+    from reloc.mapping import MappingParams, grow_submap, load_map
     from reloc.matching import MatchingParams, Relocalizer
     from reloc.transforms import pose_error
 
     cfg = sequence_config(load_config(config_path), seq, quiet)
     mapping = MappingParams.from_config(cfg)
     k = window or mapping.submap_window_frames
+    k_max = mapping.submap_max_window_frames if max_window is None else max_window
+    if k_max and k_max < k:
+        raise click.BadParameter(f"expected 0 or at least the window ({k} frames), got {k_max}",
+                                 param_hint="--max-window")
+    k_max = max(k, k_max)
     plane_map = load_map(map_path)
     sequence = open_sequence(seq)
     queries = parse_frames(frames_spec, len(sequence))[::every]
@@ -73,15 +82,24 @@ def locate(seq, map_path, out_path, frames_spec, window, stride, every, source, 
     warm_up(("reloc.matching._kernels", "reloc.mapping._kernels", "reloc.extraction.pipeline"), quiet=quiet)
     reloc = Relocalizer(plane_map, MatchingParams.from_config(cfg))
     cache: dict[int, tuple] = {}
+    extracted_ms = [0.0]  # extraction time spent while growing windows (not the submap's)
 
     def planes_of(i: int):
         if i not in cache:
             frame = sequence[i]
             t0 = time.perf_counter()
             cache[i] = (plane_source(frame), frame.T_world_cam, (time.perf_counter() - t0) * 1e3)
-            for old in [j for j in cache if j < i - stride * k]:
+            extracted_ms[0] += cache[i][2]
+            for old in [j for j in cache if j < i - stride * k_max]:
                 del cache[old]
         return cache[i]
+
+    def window_of(q: int, n: int) -> list:
+        """The planes, poses and extraction times of the last ``n`` frames of the window ending at ``q``."""
+        items = [planes_of(i) for i in range(q - stride * (n - 1), q + 1, stride) if i >= 0]
+        if items[-1][1] is None:
+            return items[-1:]  # no odometry for the query frame: a single-frame submap
+        return [it for it in items if it[1] is not None]
 
     def truth_of(submap, res, T_true) -> dict:
         """The answer against the sequence's pose, and whether that pose is confirmed."""
@@ -101,33 +119,33 @@ def locate(seq, map_path, out_path, frames_spec, window, stride, every, source, 
     for q in tqdm(queries, desc="locate", unit="query", disable=quiet, leave=False):
         record = {"frame": int(q), "stamp_ns": int(sequence.stamps_ns[q])}
         try:
-            window_idx = [i for i in range(q - stride * (k - 1), q + 1, stride) if i >= 0]
-            items = [planes_of(i) for i in window_idx]
-            if items[-1][1] is None:
-                items = items[-1:]  # no odometry for the query frame: a single-frame submap
-            else:
-                items = [it for it in items if it[1] is not None]
+            newest = planes_of(q)
             t0 = time.perf_counter()
+            extracted_ms[0] = 0.0
             fusion: dict = {}
-            submap = build_submap([it[0] for it in items], [it[1] for it in items] if len(items) > 1 else None,
-                                  mapping, fusion)
-            submap_ms = (time.perf_counter() - t0) * 1e3
+
+            def fetch(n: int, q: int = q):
+                items = window_of(q, n)
+                return [it[0] for it in items], [it[1] for it in items]
+
+            submap, used = grow_submap(fetch, k, k_max, mapping, fusion)  # one frame when q has no pose
+            submap_ms = (time.perf_counter() - t0) * 1e3 - extracted_ms[0]
             trace = {} if explain_path else None
             res = reloc.locate(submap, trace=trace)
             d = res.to_dict()
             record.update(
                 status=d["status"], reason=d["reason"], T_map_cam=d["T_map_cam"], score=d["score"],
                 ambiguity_ratio=d["ambiguity_ratio"], matched_planes=d["matched_planes"],
-                window_frames=len(items), frames_left_out=fusion.get("frames_left_out", 0), counts=d["counts"],
-                timings_ms={"extraction": round(float(items[-1][2]), 4), "submap": round(submap_ms, 4),
+                window_frames=used, frames_left_out=fusion.get("frames_left_out", 0), counts=d["counts"],
+                timings_ms={"extraction": round(float(newest[2]), 4), "submap": round(submap_ms, 4),
                             **d["timings_ms"]},
             )
             if check_poses:
-                record["truth"] = truth_of(submap, res, items[-1][1])
+                record["truth"] = truth_of(submap, res, newest[1])
                 identifiable += int(bool(record["truth"].get("identifiable")))
             if explain_path:
                 # With --check-poses the account reuses the identifiability checked above.
-                truth = items[-1][1] if check_poses else None
+                truth = newest[1] if check_poses else None
                 known = (record["truth"]["identifiable"], record["truth"]["reason"]) if truth is not None else None
                 accounts.append(f"== frame {int(q)} (stamp_ns {record['stamp_ns']})\n"
                                 + explain_result(reloc, submap, res, trace, truth, identified=known))

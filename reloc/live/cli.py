@@ -158,7 +158,7 @@ def run(camera, map_spec, serial_url, frames, duration_s, summary_path, config_p
     if trace_path:
         profiler.write_chrome_trace(trace_path)
     if not quiet:
-        click.echo(profiler.table(order=["capture.wait", "extract", "submap", "track", "reloc",
+        click.echo(profiler.table(order=["capture.wait", "extract", "submap", "track", "submap.build", "reloc",
                                          "latency.capture_to_planes", "latency.capture_to_pose"]), err=True)
     f = d["frames"]
     click.echo(f"frames: {f['captured']} captured, {f['processed']} processed, {f['dropped']} dropped by the queue, "

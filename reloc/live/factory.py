@@ -135,13 +135,17 @@ class SubmapFuser:
     ``stats`` count the window frames the odometry check left out (``frames_left_out``)."""
 
     def __init__(self, params):
-        from reloc.mapping import build_submap
+        from reloc.mapping import build_submap, grow_submap
 
-        self.params, self._build = params, build_submap
+        self.params, self._build, self._grow = params, build_submap, grow_submap
         self.stats: dict = {"frames_left_out": 0}
 
     def __call__(self, plane_sets, T_odom_cams):
         return self._build(plane_sets, T_odom_cams, self.params, self.stats)
+
+    def grow(self, fetch, first: int, most: int):
+        """:func:`reloc.mapping.grow_submap` with these parameters: ``(submap, frames used)``."""
+        return self._grow(fetch, first, most, self.params, self.stats)
 
 
 def make_submap_fuser(cfg):

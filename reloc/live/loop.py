@@ -228,7 +228,9 @@ class LiveLoop:
         Host clock of capture stamps (the bridge's clock must be the same).
     fuse_submap:
         ``fuse(plane_sets, T_odom_cams) -> PlaneSet`` fusing a window's planes (see :class:`SubmapWindow`); None
-        stacks them.
+        stacks them. With a ``grow`` method as well (:class:`reloc.live.factory.SubmapFuser`), a window that cannot
+        pin a pose grows back in time up to ``params.max_window_frames``. The window is fused only when a
+        relocalization is asked for (stage ``submap.build``).
     """
 
     def __init__(self, source, extract: Callable[[DepthFrame], Any], relocalizer, *, params: LiveParams | None = None,
@@ -257,7 +259,9 @@ class LiveLoop:
 
         self._queue = DropOldestQueue(self.params.queue_frames)
         self._mailbox = _Mailbox()
-        self._window = SubmapWindow(self.params.window_frames, fuse=fuse_submap)
+        grow = getattr(fuse_submap, "grow", None)  # a SubmapFuser can grow a window that cannot pin a pose
+        self._window = SubmapWindow(self.params.window_frames, fuse=fuse_submap,
+                                    max_frames=self.params.max_window_frames if grow is not None else 0, grow=grow)
         self._fuse_stats = getattr(fuse_submap, "stats", None)  # a SubmapFuser counts frames its odometry check left out
         self._outbox: queue.Queue = queue.Queue(maxsize=64)
         self._stop = threading.Event()  # stop everything now (Ctrl-C, duration, stop())
@@ -525,7 +529,6 @@ class LiveLoop:
                     lost_trigger = "odometry_jump"
             self._prev_odom = None if T_odom_cam is None else (odo_kind, T_odom_cam, frame.seq)
             self._window.push(planes, T_odom_cam, frame.seq)
-            submap = self._window.build()
 
         T_pred = None
         with prof.stage("track"):
@@ -555,9 +558,11 @@ class LiveLoop:
 
         trigger, request_ids = self._trigger(lost_trigger)
         if trigger is not None:
+            with prof.stage("submap.build"):  # only for a relocalization: a window is fused when it is needed
+                submap = self._window.build()
             truth = frame.T_world_cam if frame.pose_source in _TRUTH_SOURCES else None
             self._last_attempt_s = time.monotonic()
-            self._mailbox.submit(_Job(trigger, submap, len(self._window), frame.seq, frame.stamp_ns, t_cap,
+            self._mailbox.submit(_Job(trigger, submap, self._window.last_frames, frame.seq, frame.stamp_ns, t_cap,
                                       T_odom_cam, odo_kind, self._odom_epoch, truth, request_ids))
 
     def _reset_odometry(self) -> None:

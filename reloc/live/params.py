@@ -17,7 +17,8 @@ class LiveParams:
     """Everything :class:`reloc.live.loop.LiveLoop` needs besides its components (units in the names).
 
     - ``queue_frames``: capture queue length; when full the oldest frame is dropped and counted.
-    - ``window_frames``: frames fused into a submap with their odometry (1 = single-frame submaps).
+    - ``window_frames``: frames fused into a submap with their odometry (1 = single-frame submaps);
+      ``max_window_frames``: how far a submap that cannot pin a pose may grow back in time (0 = not at all).
     - ``reloc_period_s``: periodic verification; ``search_period_s``: retry period while lost.
     - ``lost_jump_m`` / ``lost_jump_rad``: an odometry step larger than this between frames means lost.
     - ``lost_min_explained`` / ``lost_frames``: the tracking check (see :func:`reloc.live.tracking.explained_fraction`)
@@ -30,6 +31,7 @@ class LiveParams:
 
     queue_frames: int = 4
     window_frames: int = 1
+    max_window_frames: int = 0
     reloc_period_s: float = 5.0
     search_period_s: float = 0.25
     lost_jump_m: float = 0.5
@@ -48,6 +50,10 @@ class LiveParams:
             v = getattr(self, name)
             if not isinstance(v, (int, np.integer)) or v < 1:
                 raise ValueError(f"{name}: expected a positive integer, got {v!r}")
+        if not isinstance(self.max_window_frames, (int, np.integer)) or self.max_window_frames < 0 or (
+                0 < self.max_window_frames < self.window_frames):
+            raise ValueError(f"max_window_frames: expected 0 or at least window_frames ({self.window_frames}), got "
+                             f"{self.max_window_frames!r}")
         for name in ("reloc_period_s", "search_period_s", "lost_jump_m", "lost_jump_rad", "check_max_angle_rad",
                      "check_max_offset_m", "status_period_s", "stall_s"):
             v = getattr(self, name)
@@ -68,6 +74,7 @@ class LiveParams:
         kwargs = dict(
             queue_frames=live.queue_frames,
             window_frames=cfg.mapping.submap_window_frames,
+            max_window_frames=cfg.mapping.submap_max_window_frames,
             reloc_period_s=live.reloc_period_s,
             search_period_s=live.search_period_s,
             lost_jump_m=live.lost_jump_m,
