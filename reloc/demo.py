@@ -32,6 +32,7 @@ class DemoSpec:
     negatives: int = 10
     window_frames: int = 40
     window_stride: int = 3
+    window_max_frames: int = 120  # a submap that cannot pin a pose grows back in time up to this many frames
     seed: int = 1
 
 
@@ -101,6 +102,7 @@ def run_demo(spec: DemoSpec | None = None, cfg=None, *, progress: Callable[[str,
     base = EvalSpec(scenes=(spec.scene,), noise=spec.noise, camera=spec.camera, width=spec.width, height=spec.height,
                     map_trajectories=spec.map_trajectories, map_seed=spec.seed, queries_per_kind=spec.queries_per_kind,
                     query_seed=100 + spec.seed, window_frames=spec.window_frames, window_stride=spec.window_stride,
+                    window_max_frames=spec.window_max_frames,
                     query_spacing_frames=max(60, spec.window_stride * spec.window_frames + 1),
                     plane_source=spec.plane_source)
     scene = make_scene(spec.scene)
@@ -173,11 +175,13 @@ def format_demo(result: dict) -> str:
     c = result["counts"]
     pct = (lambda v: "-" if v is None else f"{100 * v:.1f}")
     cm = (lambda v: "-" if v is None else f"{100 * v:.2f}")
+    most = result["spec"].get("window_max_frames", 0)
+    grown = f" (up to {most} where fewer cannot pin a pose)" if most > result["spec"]["window_frames"] else ""
     lines = [
         f"scene {result['spec']['scene']} ({result['spec']['plane_source']} planes): map of {result['map']['planes']} "
         f"planes from {result['map']['keyframes']} keyframes; {result['queries']['positive']} positive queries "
         f"({result['queries']['ambiguous']} ambiguous), {result['queries']['negative']} negative "
-        f"(scene {result['spec']['negative_scene']}), submaps of {result['spec']['window_frames']} frames",
+        f"(scene {result['spec']['negative_scene']}), submaps of {result['spec']['window_frames']} frames{grown}",
         "",
         f"{'TP':>4} {'TN':>4} {'FP':>4} {'FN':>4} {'P[%]':>7} {'R[%]':>7} {'ident':>5} {'R_id[%]':>7} "
         f"{'t_err[cm]':>10} {'r_err[deg]':>10}",
