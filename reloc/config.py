@@ -247,7 +247,10 @@ class MappingConfig(_Section):
         1.0, ge=0, description="...or less area of them along the weakest direction of the translation they fix "
         "(normals within 60 deg of it).",
     )
-    submap_grow_min_area_m2: float = Field(0.3, ge=0, description="Planes at least this large count in those tests.")
+    submap_grow_min_area_m2: float = Field(
+        0.5, ge=0, description="Planes at least this large count in those tests (faces of 0.3-0.4 m^2, which the map "
+        "often lacks, stopped windows growing at 0.3).",
+    )
 
     @model_validator(mode="after")
     def _check_window(self) -> "MappingConfig":

@@ -161,7 +161,7 @@ def test_a_submap_that_cannot_pin_a_pose_grows_back_in_time():
     params = MappingParams()
     newest = build_submap(sets[-10:], Ts[-10:], params)
     assert len(newest) == 4  # floor, ceiling, two walls: nothing fixes where along the corridor
-    assert submap_constrained(newest, params) == (False, "4 planes of at least 0.3 m^2 (needs 6)")
+    assert submap_constrained(newest, params) == (False, "4 planes of at least 0.5 m^2 (needs 6)")
     assert submap_constrained(newest, params.with_(submap_grow_min_planes=4)) == (
         False, "0.00 m^2 along its weakest direction (needs 1.0)")
     asked = []

@@ -69,7 +69,7 @@ class MappingParams:
     submap_max_window_frames: int = 0
     submap_grow_min_planes: int = 6
     submap_grow_min_support_m2: float = 1.0
-    submap_grow_min_area_m2: float = 0.3
+    submap_grow_min_area_m2: float = 0.5
 
     def __post_init__(self) -> None:
         if self.keyframe_min_translation_m < 0 or self.keyframe_min_rotation_rad < 0:
