@@ -379,6 +379,31 @@ def test_reloc_run_stops_cleanly_on_sigterm(tmp_path):
     assert "relocalizations:" in stdout
 
 
+def test_loop_grows_the_window_of_a_relocalization_that_cannot_pin_a_pose(living_room_map):
+    """With a fuser that can grow windows (SubmapFuser) and max_window_frames, a relocalization's window grows back
+    in time while its submap cannot pin a pose; here none can (50 planes asked for): each grows as far as it may."""
+    from reloc.live.factory import SubmapFuser
+    from reloc.mapping import MappingParams
+
+    map_planes, reloc = living_room_map
+    src = OdometrySource(sim_source(40))
+    truth = src.truth_planes()
+
+    def extract(frame):
+        if frame.seq in (12, 30):
+            loop.request_relocalization("manual")
+        return truth(frame)
+
+    fuse = SubmapFuser(MappingParams(submap_grow_min_planes=50))
+    params = LiveParams(queue_frames=1000, window_frames=3, max_window_frames=9, reloc_period_s=1000.0)
+    loop = LiveLoop(src, extract, reloc, params=params, map_planes=map_planes, fuse_submap=fuse)
+    summary = loop.run()
+    manual = [r for r in summary.relocalizations if "manual" in r.trigger]
+    assert [(r.seq, r.submap_frames) for r in manual] == [(12, 9), (30, 9)]
+    assert summary.relocalizations[0].submap_frames == 1  # the first frame: nothing to grow into
+    assert_poses_within_tolerance(summary, min_ok=2, truth=src.truth)
+
+
 def test_loop_with_plane_extraction_and_fused_submaps(living_room_map):
     """The real pipeline: extraction of every 640x400 frame, submaps of 3 frames fused by reloc.mapping."""
     from reloc.config import Config
