@@ -20,7 +20,8 @@ Counting (see reloc.evaluation.metrics): TP within 0.25 m and 5 deg; positives w
 scene (identical rooms, symmetric room, periodic corridor) must be rejected: any pose for them is FP (a guess).
 Goals: no false positive, recall >= 95%, median pose error < 3 cm and 0.5 deg.
 
-    python benchmarks/reloc_accuracy.py [--noise kinect,tof,stereo] [--queries 10] [--window 40] [--ablation]
+    python benchmarks/reloc_accuracy.py [--noise kinect,tof,stereo] [--queries 10] [--window 40] [--max-window 120]
+                                         [--ablation]
 
 ``--set KEY=VALUE`` (repeatable) changes an extraction parameter (ExtractionParams) for maps and queries alike, to
 measure a candidate default; ``--mapping-set KEY=VALUE`` likewise a MappingParams field (the fusion of maps and of
