@@ -126,6 +126,5 @@ def weakest_direction_support(normals: np.ndarray, areas: np.ndarray) -> tuple[n
     a plane supports it when its normal is within 60 degrees of it. A corridor view (floor, ceiling, two walls and
     one door jamb) is pinned along the corridor by the jamb alone. Returns ``(direction (3,), area)``.
     """
-    vals, vecs = np.linalg.eigh((normals * areas[:, None]).T @ normals)
-    e = vecs[:, 0]
+    e = np.linalg.eigh((normals * areas[:, None]).T @ normals)[1][:, 0]
     return e, float(areas[np.abs(normals @ e) >= 0.5].sum())

@@ -28,6 +28,7 @@ import numpy as np
 from reloc._params import with_changes
 from reloc.mapping.fusion import FusionParams, PlaneAccumulator, plane_basis, plane_cells
 from reloc.mapping.plane_map import PlaneMap
+from reloc.planes import weakest_direction_support
 from reloc.planeset import PlaneSet, moved_geometry
 from reloc.transforms import check_transform, invert, rotation_angle_rad
 
@@ -458,8 +459,6 @@ def submap_constrained(submap: PlaneSet, params: MappingParams | None = None) ->
     the translation they fix (:func:`reloc.planes.weakest_direction_support`). The matcher asks as much of the
     planes it matches (five of them, 0.4 m^2 along the weakest direction), so a submap short of this is likely to be
     rejected or, worse, to slide: a corridor view of floor, ceiling and two walls. Returns ``(ok, why not)``."""
-    from reloc.planes import weakest_direction_support
-
     params = params or MappingParams()
     large = np.flatnonzero(submap.areas >= params.submap_grow_min_area_m2)
     if len(large) < max(params.submap_grow_min_planes, 1):
