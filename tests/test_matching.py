@@ -627,6 +627,63 @@ def test_a_plane_behind_a_map_wall_is_hidden_but_not_one_seen_through_a_doorway(
     assert states["solid, seen from beyond"] == (1, 0.0)
 
 
+def test_a_camera_path_through_a_map_wall_is_blocked_but_not_one_through_a_doorway():
+    """A window's cameras walk 2 m across the y = 0 wall of a corridor (map: the corridor, that wall solid or with
+    a doorway 0.9 m wide at x from 2.55 to 3.45 m). Across the solid wall the path is blocked; through the doorway
+    it is not, at its centre or 0.3 m from a jamb; nor is a path along the corridor, nor one that crosses the wall
+    1.5 m from the doorway short of the margin; one that crosses it 1.5 m from the doorway is blocked."""
+    from dataclasses import replace
+
+    from reloc.evaluation.synthetic import Rect, room
+
+    corridor = [r for r in room(6.0, 2.0, 2.7) if r.normal[1] < 0.5]  # all but the y = 0 wall
+    solid = [Rect((3.0, 0.0, 1.35), (0, 1, 0), (1, 0, 0), 3.0, 1.35)]
+    doorway = [Rect((1.275, 0.0, 1.35), (0, 1, 0), (1, 0, 0), 1.275, 1.35),
+               Rect((4.725, 0.0, 1.35), (0, 1, 0), (1, 0, 0), 1.275, 1.35)]
+    T = look_at((3.0, 1.5, 1.0), (3.0, 3.0, 1.0))
+
+    def blocked(wall, x0, y0, x1, y1) -> bool:
+        reloc = Relocalizer(scene_planes(corridor + wall), MatchingParams(path_test=True))
+        sub = view_planes(corridor + wall, T)
+        steps = np.linspace(0.0, 1.0, 21)[:, None]
+        path = np.array([x0, y0, 1.0]) + steps * np.array([x1 - x0, y1 - y0, 0.0])
+        sub = replace(sub, viewpoints=(path - T[:3, 3]) @ T[:3, :3])  # in the camera frame
+        used, _, _, _ = reloc.prepare(sub)
+        return bool(reloc.path_blocked(used, T[None, :3, :3], T[None, :3, 3])[0])
+
+    assert blocked(solid, 3.0, 1.0, 3.0, -1.0)
+    assert not blocked(doorway, 3.0, 1.0, 3.0, -1.0)
+    assert not blocked(doorway, 2.85, 1.0, 2.85, -1.0)
+    assert not blocked(solid, 1.0, 1.0, 5.0, 1.0)
+    assert not blocked(doorway, 1.0, 1.0, 1.0, -0.04)  # ends within the 5 cm margin
+    assert blocked(doorway, 1.0, 1.0, 1.0, -1.0)
+    # Without a path (a single-frame submap) nothing is blocked.
+    reloc = Relocalizer(scene_planes(corridor + solid), MatchingParams(path_test=True))
+    used, _, _, _ = reloc.prepare(replace(view_planes(corridor + solid, T), viewpoints=np.zeros((1, 3))))
+    assert not reloc.path_blocked(used, T[None, :3, :3], T[None, :3, 3])[0]
+
+
+def test_a_pose_whose_path_is_blocked_is_no_rival_but_may_win():
+    # Two poses 2 m apart that match alike tie: rejected as ambiguous. The second blocked, the first wins; the first
+    # blocked, the second is still its rival (the first may win, but it is not accepted against a rival).
+    from reloc.matching.scoring import decide
+
+    p = MatchingParams()
+    R = np.stack([np.eye(3)] * 2)
+    t = np.array([[0.0, 0.0, 0.0], [2.0, 0.0, 0.0]])
+    match = np.array([[0, 1, 2, 3, 4], [5, 6, 7, 8, 9]], np.int32)
+    overlap = np.ones((2, 5))
+    state = np.zeros((2, 5), np.int8)
+    args = (R, t, match, overlap, np.array([5, 5]), np.array([1.0, 1.0]), p)
+    kw = dict(state=state, areas=np.full(5, 2.0), unknown=np.zeros(2))
+    d = decide(*args, **kw)
+    assert not d.accepted and d.reason.startswith("ambiguous: 2 poses")
+    d = decide(*args, **kw, blocked=np.array([False, True]))
+    assert d.accepted and d.best == 0 and d.runner_up_score == 0.0 and d.score > 0.0
+    d = decide(*args, **kw, blocked=np.array([True, False]))
+    assert not d.accepted and d.reason.startswith("ambiguous: 2 poses")
+
+
 def test_planes_the_map_hides_take_their_area_off_the_weakest_directions_support():
     """A view along a 30 m corridor (its ends out of range) is pinned along it by one cabinet face (0.6 m^2 seen,
     above the 0.4 needed) and sees, through a doorway, a wall of the room beyond that also faces along the
@@ -698,6 +755,10 @@ def test_decision_offsets_follow_the_sensor_noise():
     assert kinect.occlusion and MatchingParams.from_config(
         Config.model_validate({"extraction": {"noise_model": "tof", "noise_coeff": 3e-3}})).occlusion
     assert not stereo.occlusion
+    # The path test trusts the map's doorways as the occlusion test does: on for a Kinect-class sensor, off for
+    # this stereo camera; a config that turns it off keeps it off.
+    assert kinect.path_test and not stereo.path_test
+    assert not MatchingParams.from_config(Config.model_validate({"evaluation": {"path_test": False}})).path_test
     assert not MatchingParams.from_config(Config.model_validate({"evaluation": {"occlusion": False}})).occlusion
     wide = Config.model_validate({"extraction": {"noise_model": "stereo", "noise_coeff": 2.4e-3},
                                   "evaluation": {"occlusion_max_sensor_sigma_m": 0.03}})

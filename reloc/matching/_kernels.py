@@ -1109,6 +1109,89 @@ def mark_hidden(R, t, state, sub_normals, vs_ptr, vs_points, views, map_normals,
     return marked
 
 
+@njit
+def _walks_through(ax, ay, az, bx, by, bz, map_normals, map_offsets, map_centroids, map_radii, bases, surf_ptr,
+                   surf_keys, cell, margin, reach):
+    """Whether the step from ``a`` to ``b`` goes through a wall of the map: a vertical map plane (z up) with one end
+    more than ``margin`` in front of it and the other more than ``margin`` behind, crossed where the plane has
+    surface, and surface on along its horizontal every ``cell`` up to ``reach`` on both sides. A doorway the map
+    saw narrowed by its edges' samples still leaves a gap within ``reach`` of any step through it."""
+    for i in range(map_normals.shape[0]):
+        mx = map_normals[i, 0]
+        my = map_normals[i, 1]
+        mz = map_normals[i, 2]
+        if abs(mz) > 0.5:
+            continue
+        sa = mx * ax + my * ay + mz * az + map_offsets[i]
+        sb = mx * bx + my * by + mz * bz + map_offsets[i]
+        if not ((sa > margin and sb < -margin) or (sa < -margin and sb > margin)):
+            continue
+        f = sa / (sa - sb)
+        x = ax + (bx - ax) * f
+        y = ay + (by - ay) * f
+        z = az + (bz - az) * f
+        dx = x - map_centroids[i, 0]
+        dy = y - map_centroids[i, 1]
+        dz = z - map_centroids[i, 2]
+        if dx * dx + dy * dy + dz * dz > map_radii[i] * map_radii[i]:
+            continue
+        # The plane's horizontal direction: n x z.
+        hx = my
+        hy = -mx
+        hn = math.sqrt(hx * hx + hy * hy)
+        hx /= hn
+        hy /= hn
+        solid = _on_surface(i, x, y, z, bases, surf_ptr, surf_keys, cell)
+        k = 1
+        while solid and k * cell <= reach + 1e-9:
+            e = k * cell
+            solid = (_on_surface(i, x + e * hx, y + e * hy, z, bases, surf_ptr, surf_keys, cell)
+                     and _on_surface(i, x - e * hx, y - e * hy, z, bases, surf_ptr, surf_keys, cell))
+            k += 1
+        if solid:
+            return True
+    return False
+
+
+@njit
+def path_blocked(R, t, views, min_step, map_normals, map_offsets, map_centroids, map_radii, bases, surf_ptr,
+                 surf_keys, cell, margin, reach, out):
+    """Whether the camera path of a submap, under each pose ``(R[h], t[h])``, walks through a wall of the map
+    (:func:`_walks_through`): ``out[h]``. The path is ``views`` (V, 3), the submap's camera positions in order (its
+    frame), taken in steps of at least ``min_step`` (a step of a few centimetres cannot be both in front of a wall
+    and behind it); each step is judged, and so is each pair of steps (a point of the path within ``margin`` of a
+    wall is on neither side of it)."""
+    H = R.shape[0]
+    V = views.shape[0]
+    px = np.empty(V)
+    py = np.empty(V)
+    pz = np.empty(V)
+    for h in range(H):
+        out[h] = False
+        if V < 2:
+            continue
+        n = 0
+        for v in range(V):
+            x = R[h, 0, 0] * views[v, 0] + R[h, 0, 1] * views[v, 1] + R[h, 0, 2] * views[v, 2] + t[h, 0]
+            y = R[h, 1, 0] * views[v, 0] + R[h, 1, 1] * views[v, 1] + R[h, 1, 2] * views[v, 2] + t[h, 1]
+            z = R[h, 2, 0] * views[v, 0] + R[h, 2, 1] * views[v, 1] + R[h, 2, 2] * views[v, 2] + t[h, 2]
+            if n > 0 and v < V - 1 and (x - px[n - 1]) ** 2 + (y - py[n - 1]) ** 2 + (z - pz[n - 1]) ** 2 < (
+                    min_step * min_step):
+                continue
+            px[n] = x
+            py[n] = y
+            pz[n] = z
+            n += 1
+            for back in range(2, 4):
+                if n >= back and _walks_through(px[n - back], py[n - back], pz[n - back], x, y, z, map_normals,
+                                                map_offsets, map_centroids, map_radii, bases, surf_ptr, surf_keys,
+                                                cell, margin, reach):
+                    out[h] = True
+                    break
+            if out[h]:
+                break
+
+
 # ---------------------------------------------------------------------------------------------------------------------
 # Kernel density over SE(3) and modes
 

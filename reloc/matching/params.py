@@ -61,13 +61,17 @@ class MatchingParams:
     occlusion_erode_m: float = 0.3
     occlusion_min_fraction: float = 0.5
     occlusion_max_sensor_sigma_m: float = 0.02
+    path_test: bool = True
+    path_min_step_m: float = 0.3
+    path_margin_m: float = 0.05
+    path_reach_m: float = 0.5
     match_max_angle_rad: float = math.radians(5.0)
     match_max_offset_m: float = 0.08
     # Weights and kernel density (Eq. 12-14) and the decision.
     kde_sigma_translation_m: float = 0.1
     kde_sigma_rotation_rad: float = math.radians(3.0)
     min_score: float = 0.0
-    min_ambiguity_ratio: float = 1.5
+    min_ambiguity_ratio: float = 1.55
     probe_twins: bool = True
     probe_planes: int = 3
     probe_extent_tolerance_m: float = 3.0
@@ -189,6 +193,10 @@ class MatchingParams:
             occlusion_erode_m=e.occlusion_erode_m,
             occlusion_min_fraction=e.occlusion_min_fraction,
             occlusion_max_sensor_sigma_m=e.occlusion_max_sensor_sigma_m,
+            path_test=e.path_test,
+            path_min_step_m=e.path_min_step_m,
+            path_margin_m=e.path_margin_m,
+            path_reach_m=e.path_reach_m,
             match_max_angle_rad=r(e.match_max_angle_deg),
             match_max_offset_m=e.match_max_offset_m,
             kde_sigma_translation_m=e.kde_sigma_translation_m,
@@ -241,7 +249,8 @@ CONFLICT_SIGMAS = 3.85
 def scaled_to_sensor(params: MatchingParams, noise_model: str, noise_coeff: float) -> MatchingParams:
     """``params`` with ``decision_max_offset_m`` and ``decision_conflict_m`` raised to ``DECISION_SIGMAS`` and
     ``CONFLICT_SIGMAS`` times the sensor's noise at 3 m (never lowered), ``occlusion`` off when that noise exceeds
-    ``occlusion_max_sensor_sigma_m``, and ``min_projection_ratio`` lowered to ``noisy_min_projection_ratio`` when that
+    ``occlusion_max_sensor_sigma_m`` (and ``path_test`` with it: both trust the map's doorways to be open), and
+    ``min_projection_ratio`` lowered to ``noisy_min_projection_ratio`` when that
     noise exceeds ``noisy_sensor_sigma_m``.
 
     The projection test (Eq. 10) counts the verification samples of a submap plane within ``projection_inlier_m`` of
@@ -261,6 +270,7 @@ def scaled_to_sensor(params: MatchingParams, noise_model: str, noise_coeff: floa
         decision_max_offset_m=max(params.decision_max_offset_m, DECISION_SIGMAS * sigma),
         decision_conflict_m=max(params.decision_conflict_m, CONFLICT_SIGMAS * sigma),
         occlusion=params.occlusion and sigma <= params.occlusion_max_sensor_sigma_m,
+        path_test=params.path_test and sigma <= params.occlusion_max_sensor_sigma_m,
         min_projection_ratio=(min(params.min_projection_ratio, params.noisy_min_projection_ratio)
                               if sigma > params.noisy_sensor_sigma_m else params.min_projection_ratio),
     )

@@ -159,6 +159,10 @@ class _Hypotheses:
         # the raw hypotheses of the modes with no least-squares pose (whether or not their raw pose held).
         self.leader: np.ndarray | None = None
         self.unrefined: np.ndarray | None = None
+        # With path_test, per mode: whether its camera path walks through a wall of the map (it cannot be a rival);
+        # and the raw hypotheses of such modes.
+        self.blocked: np.ndarray | None = None
+        self.impossible: np.ndarray | None = None
 
     def is_refined(self, i: int) -> bool:
         """Whether mode ``i`` of a decision over refined poses has a least-squares pose (not the raw triplet's)."""
@@ -304,6 +308,20 @@ class Relocalizer:
                       p.occlusion_min_fraction, frac)
         return frac
 
+    def path_blocked(self, used: PlaneSet, R, t) -> np.ndarray:
+        """(H,) bool: whether the submap's camera path (``used.viewpoints``, in order) passes through a map surface
+        under each pose ``(R[h], t[h])`` (:func:`reloc.matching._kernels.path_blocked`); False without a path."""
+        p = self.params
+        ix = self.index
+        out = np.zeros(len(R), dtype=np.bool_)
+        views = used.viewpoints
+        if views is None or len(views) < 2 or not len(R):
+            return out
+        K.path_blocked(np.ascontiguousarray(R), np.ascontiguousarray(t), np.ascontiguousarray(views),
+                       p.path_min_step_m, ix.normals, ix.offsets, ix.centroids, ix.radii, ix.bases, ix.surf_ptr,
+                       ix.surf_keys, SURFACE_CELL_M, p.path_margin_m, p.path_reach_m, out)
+        return out
+
     def refine(self, used: PlaneSet, match_row: np.ndarray, proj_row: np.ndarray) -> np.ndarray | None:
         """Least-squares ``T_map_sub`` over the matched pairs of one hypothesis (weights: area x inlier ratio).
 
@@ -395,7 +413,8 @@ class Relocalizer:
         A look-alike pose matches some planes only within the loose search tolerances (a door 6 cm deep in its niche
         taken for the wall beside it, in a corridor turned end for end); refined and held to
         ``decision_max_offset_m``, it loses them, while the true pose keeps them. Decided on refined poses, the true
-        pose stands out where the raw triplet poses tie.
+        pose stands out where the raw triplet poses tie. With ``path_test``, each mode is also marked when the
+        submap's camera path walks through a wall of the map under it (``blocked``; such a mode is no rival).
         """
         p = self.params
         order = np.argsort(-match_quality(hyps.n_matched, hyps.explained), kind="stable").astype(np.int64)
@@ -419,10 +438,13 @@ class Relocalizer:
         v = replace(sharp, n_matched=v.n_matched, explained=v.explained, unknown=v.unknown, passed=v.passed)
         if p.occlusion:
             self.mark_hidden(used, vs_ptr, vs_pts, R, t, v.state)
+        blocked = self.path_blocked(used, R, t) if p.path_test else np.zeros(len(leaders), dtype=bool)
         out = _Hypotheses(len(used))
         out.add(R, t, cand, v)
         out.leader = leaders[v.passed]
         out.unrefined = leaders[~refined]
+        out.blocked = blocked[v.passed]
+        out.impossible = leaders[blocked]
         return out
 
     def _judge(self, hyps, used: PlaneSet, vs_ptr, vs_pts, min_matched: int, timings: dict,
@@ -465,6 +487,8 @@ class Relocalizer:
         """
         quality = match_quality(hyps.n_matched, hyps.explained)
         rivals = tight.unrefined[tight.unrefined != tight.leader[decision.best]]
+        if tight.impossible is not None and len(tight.impossible):
+            rivals = rivals[~np.isin(rivals, tight.impossible)]
         if not len(rivals):
             return decision
         a = rivals[np.argmax(quality[rivals])]
@@ -480,7 +504,7 @@ class Relocalizer:
         part: dict = {}
         decision = decide(hyps.R, hyps.t, hyps.match, hyps.over, hyps.n_matched, hyps.explained, self.params,
                           min_matched=min_matched, state=hyps.state, areas=used.areas, free_frac=hyps.free_frac,
-                          unknown=hyps.unknown,
+                          unknown=hyps.unknown, blocked=hyps.blocked,
                           optimistic=len(self.index.free_keys) > 0, timings_ms=part, modes=modes)
         timings["decide.weights"] += part.get("weights", 0.0)
         timings["decide.density"] += part.get("density", 0.0)

@@ -133,6 +133,7 @@ def decide(
     areas: np.ndarray | None = None,
     free_frac: np.ndarray | None = None,
     unknown: np.ndarray | None = None,
+    blocked: np.ndarray | None = None,
     optimistic: bool = True,
     timings_ms: dict | None = None,
     modes: dict | None = None,
@@ -147,7 +148,8 @@ def decide(
     that may be the truth, given what the map does not know, competes); only a pose that itself explains enough
     can win. ``unknown`` (H,): the weight of each pose's planes unknown to the map (see :func:`explains_enough`).
     ``free_frac`` (H, S): the fraction of each unmatched plane's samples in the map's known free space, which shrinks
-    the credit an optimistic rival gets for that plane.
+    the credit an optimistic rival gets for that plane. ``blocked`` (H,): poses whose camera path walks through a
+    wall of the map (see ``MatchingParams.path_test``); their modes are no rivals, though they may still win.
 
     ``timings_ms``: when given, the milliseconds of the frequency weights (``"weights"``, Eq. 12-13) and of the kernel
     density (``"density"``, Eq. 14) are added to it. ``modes``: when given, it receives the poses' modes, for
@@ -191,6 +193,10 @@ def decide(
         rival = pose_density(R[leaders], t[leaders], mode_opt, params)
         if z > 0:
             rival = rival * (float(mode_opt.sum()) / z)
+    if blocked is not None and np.any(blocked):
+        # A pose whose camera path walks through a wall of the map is no rival (it may still win: a map wall
+        # drawn across a doorway must not turn the true pose away).
+        rival = np.where(np.asarray(blocked)[leaders], 0.0, rival)
     if modes is not None:
         modes.update(group=group, score=density, rival=rival)
     if timings_ms is not None:
