@@ -989,6 +989,21 @@ def _on_surface(i, x, y, z, bases, surf_ptr, surf_keys, cell):
 
 
 @njit
+def _crossing(i, ax, ay, az, bx, by, bz, sa, sb, map_centroids, map_radii):
+    """Where the segment from ``a`` to ``b`` crosses map plane ``i`` (``sa``, ``sb``: the ends' signed distances to
+    it, of opposite signs), and whether that point lies within the plane's radius of its centroid:
+    ``(inside, x, y, z)``."""
+    f = sa / (sa - sb)
+    x = ax + (bx - ax) * f
+    y = ay + (by - ay) * f
+    z = az + (bz - az) * f
+    dx = x - map_centroids[i, 0]
+    dy = y - map_centroids[i, 1]
+    dz = z - map_centroids[i, 2]
+    return dx * dx + dy * dy + dz * dz <= map_radii[i] * map_radii[i], x, y, z
+
+
+@njit
 def _hidden_from(cx, cy, cz, px, py, pz, nx, ny, nz, map_normals, map_offsets, map_centroids, map_radii, bases,
                  surf_ptr, surf_keys, cell, margin, erode):
     """Whether the line of sight from the camera ``c`` to the point ``p`` (of a plane with normal ``n``) crosses a
@@ -1006,14 +1021,8 @@ def _hidden_from(cx, cy, cz, px, py, pz, nx, ny, nz, map_normals, map_offsets, m
         sp = mx * px + my * py + mz * pz + map_offsets[i]
         if sp >= -margin:
             continue
-        f = sc / (sc - sp)
-        x = cx + (px - cx) * f
-        y = cy + (py - cy) * f
-        z = cz + (pz - cz) * f
-        dx = x - map_centroids[i, 0]
-        dy = y - map_centroids[i, 1]
-        dz = z - map_centroids[i, 2]
-        if dx * dx + dy * dy + dz * dz > map_radii[i] * map_radii[i]:
+        inside, x, y, z = _crossing(i, cx, cy, cz, px, py, pz, sc, sp, map_centroids, map_radii)
+        if not inside:
             continue
         if not _on_surface(i, x, y, z, bases, surf_ptr, surf_keys, cell):
             continue
@@ -1126,14 +1135,8 @@ def _walks_through(ax, ay, az, bx, by, bz, map_normals, map_offsets, map_centroi
         sb = mx * bx + my * by + mz * bz + map_offsets[i]
         if not ((sa > margin and sb < -margin) or (sa < -margin and sb > margin)):
             continue
-        f = sa / (sa - sb)
-        x = ax + (bx - ax) * f
-        y = ay + (by - ay) * f
-        z = az + (bz - az) * f
-        dx = x - map_centroids[i, 0]
-        dy = y - map_centroids[i, 1]
-        dz = z - map_centroids[i, 2]
-        if dx * dx + dy * dy + dz * dz > map_radii[i] * map_radii[i]:
+        inside, x, y, z = _crossing(i, ax, ay, az, bx, by, bz, sa, sb, map_centroids, map_radii)
+        if not inside:
             continue
         # The plane's horizontal direction: n x z.
         hx = my
