@@ -1413,6 +1413,8 @@ def _warmup() -> None:
     hid = np.ones((1, S), np.int8)
     mark_hidden(Rs, ts, hid, normals, vs_ptr, pts, np.zeros((1, 3)), normals, offsets, centroids, radii, bases,
                 sptr3, skeys, 0.1, 0.04, 0.3, 0.5, np.empty((1, S), np.float32))
+    path_blocked(Rs, ts, np.array([[0.0, 0.0, 2.0], [0.0, 0.0, -2.0]]), 0.3, normals, offsets, centroids, radii,
+                 bases, sptr3, skeys, 0.1, 0.05, 0.5, np.empty(1, np.bool_))
     dens = np.empty(1)
     kde_density(Rs, ts, np.ones(1), np.ones(6), dens)
     grp = np.empty(1, np.int32)
