@@ -46,7 +46,8 @@ def explain_query(relocalizer: Relocalizer, submap: PlaneSet, T_true: np.ndarray
     ground truth ``T_map_cam``, is given), the decision over the raw hypotheses and, when made, the one over refined
     poses; the poses weighed (per mode: distance to the truth, matched planes, explained and unknown fractions of
     the submap, planes in conflict, whether it has a least-squares pose, its score in the decision and its score as
-    a rival, which the winner's must exceed ``min_ambiguity_ratio`` times); what each submap plane was under the
+    a rival, which the winner's must exceed ``min_ambiguity_ratio`` times, 0 for a pose whose camera path walks
+    through a wall of the map); what each submap plane was under the
     decision's best pose, the pose nearest the truth and the strongest other pose (its state, and the map plane it
     matched, -1 for none); and whether the true pose is identifiable (:func:`reloc.evaluation.metrics.identifiable`:
     the map confirms it as ``locate`` would accept it)."""
@@ -99,6 +100,8 @@ def explain_result(relocalizer: Relocalizer, submap: PlaneSet, res, trace: dict,
         refined = ("yes" if hyps.is_refined(i) else "no") if tight else "-"
         role = "winner" if (decision.accepted and i == decision.best) else ("best" if i == decision.best else "")
         role += " (nearest the truth)" if i == nearest else ""
+        if tight and hyps.blocked is not None and hyps.blocked[i]:
+            role = f"{role} (its cameras walk through a wall: no rival)".lstrip()
         scores = "%6.3f  %8.3f" % (modes["score"][modes["group"][i]], modes["rival"][modes["group"][i]]) if modes \
             else "%6s  %8s" % ("-", "-")
         out.append(f"  {i:2d}  {to_truth:>15s}  {int(hyps.n_matched[i]):6d}  {hyps.explained[i]:9.2f}  "
