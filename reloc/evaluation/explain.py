@@ -47,10 +47,10 @@ def explain_query(relocalizer: Relocalizer, submap: PlaneSet, T_true: np.ndarray
     poses; the poses weighed (per mode: distance to the truth, matched planes, explained and unknown fractions of
     the submap, planes in conflict, whether it has a least-squares pose, its score in the decision and its score as
     a rival, which the winner's must exceed ``min_ambiguity_ratio`` times, 0 for a pose whose camera path walks
-    through a wall of the map); what each submap plane was under the
-    decision's best pose, the pose nearest the truth and the strongest other pose (its state, and the map plane it
-    matched, -1 for none); and whether the true pose is identifiable (:func:`reloc.evaluation.metrics.identifiable`:
-    the map confirms it as ``locate`` would accept it)."""
+    through a wall of the map); what each submap plane was under the decision's best pose, the pose nearest the truth
+    and the strongest other pose (its state, and the map plane it matched, -1 for none); and whether the true pose is
+    identifiable (:func:`reloc.evaluation.metrics.identifiable`: the map confirms it as ``locate`` would accept
+    it)."""
     trace: dict = {}
     res = relocalizer.locate(submap, trace=trace)
     return explain_result(relocalizer, submap, res, trace, T_true, max_modes=max_modes)
@@ -91,7 +91,7 @@ def explain_result(relocalizer: Relocalizer, submap: PlaneSet, res, trace: dict,
     out.append("poses weighed" + (" (one per mode, as decided)" if tight else " (the best raw hypothesis per pose)")
                + ":")
     out.append("   #  to truth [m, deg]  planes  explained  unknown  conflicts  least squares   score  as rival")
-    nearest = None
+    nearest, blocked = None, hyps.blocked()
     if T_true is not None:
         nearest = min(range(len(hyps)), key=lambda i: pose_error(_pose(hyps, i), T_true)[0])
     for i in rows:
@@ -100,7 +100,7 @@ def explain_result(relocalizer: Relocalizer, submap: PlaneSet, res, trace: dict,
         refined = ("yes" if hyps.is_refined(i) else "no") if tight else "-"
         role = "winner" if (decision.accepted and i == decision.best) else ("best" if i == decision.best else "")
         role += " (nearest the truth)" if i == nearest else ""
-        if tight and hyps.blocked is not None and hyps.blocked[i]:
+        if tight and blocked is not None and blocked[i]:
             role = f"{role} (its cameras walk through a wall: no rival)".lstrip()
         scores = "%6.3f  %8.3f" % (modes["score"][modes["group"][i]], modes["rival"][modes["group"][i]]) if modes \
             else "%6s  %8s" % ("-", "-")

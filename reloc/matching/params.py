@@ -250,8 +250,8 @@ def scaled_to_sensor(params: MatchingParams, noise_model: str, noise_coeff: floa
     """``params`` with ``decision_max_offset_m`` and ``decision_conflict_m`` raised to ``DECISION_SIGMAS`` and
     ``CONFLICT_SIGMAS`` times the sensor's noise at 3 m (never lowered), ``occlusion`` off when that noise exceeds
     ``occlusion_max_sensor_sigma_m`` (and ``path_test`` with it: both trust the map's doorways to be open), and
-    ``min_projection_ratio`` lowered to ``noisy_min_projection_ratio`` when that
-    noise exceeds ``noisy_sensor_sigma_m``.
+    ``min_projection_ratio`` lowered to ``noisy_min_projection_ratio`` when that noise exceeds
+    ``noisy_sensor_sigma_m``.
 
     The projection test (Eq. 10) counts the verification samples of a submap plane within ``projection_inlier_m`` of
     the map plane. At their true poses, the suite's Kinect and ToF pairs have at least 11 of their 12 samples inside

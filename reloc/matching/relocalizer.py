@@ -159,10 +159,13 @@ class _Hypotheses:
         # the raw hypotheses of the modes with no least-squares pose (whether or not their raw pose held).
         self.leader: np.ndarray | None = None
         self.unrefined: np.ndarray | None = None
-        # With path_test, per mode: whether its camera path walks through a wall of the map (it cannot be a rival);
-        # and the raw hypotheses of such modes.
-        self.blocked: np.ndarray | None = None
+        # With path_test: the raw hypotheses of the modes whose camera path walks through a wall of the map.
         self.impossible: np.ndarray | None = None
+
+    def blocked(self) -> np.ndarray | None:
+        """Per mode of a decision over refined poses, whether its camera path walks through a wall of the map (it is
+        no rival); None for raw hypotheses."""
+        return None if self.impossible is None else np.isin(self.leader, self.impossible)
 
     def is_refined(self, i: int) -> bool:
         """Whether mode ``i`` of a decision over refined poses has a least-squares pose (not the raw triplet's)."""
@@ -414,7 +417,7 @@ class Relocalizer:
         taken for the wall beside it, in a corridor turned end for end); refined and held to
         ``decision_max_offset_m``, it loses them, while the true pose keeps them. Decided on refined poses, the true
         pose stands out where the raw triplet poses tie. With ``path_test``, each mode is also marked when the
-        submap's camera path walks through a wall of the map under it (``blocked``; such a mode is no rival).
+        submap's camera path walks through a wall of the map under it (``impossible``; such a mode is no rival).
         """
         p = self.params
         order = np.argsort(-match_quality(hyps.n_matched, hyps.explained), kind="stable").astype(np.int64)
@@ -443,7 +446,6 @@ class Relocalizer:
         out.add(R, t, cand, v)
         out.leader = leaders[v.passed]
         out.unrefined = leaders[~refined]
-        out.blocked = blocked[v.passed]
         out.impossible = leaders[blocked]
         return out
 
@@ -504,7 +506,7 @@ class Relocalizer:
         part: dict = {}
         decision = decide(hyps.R, hyps.t, hyps.match, hyps.over, hyps.n_matched, hyps.explained, self.params,
                           min_matched=min_matched, state=hyps.state, areas=used.areas, free_frac=hyps.free_frac,
-                          unknown=hyps.unknown, blocked=hyps.blocked,
+                          unknown=hyps.unknown, blocked=hyps.blocked(),
                           optimistic=len(self.index.free_keys) > 0, timings_ms=part, modes=modes)
         timings["decide.weights"] += part.get("weights", 0.0)
         timings["decide.density"] += part.get("density", 0.0)
