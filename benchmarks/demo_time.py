@@ -27,7 +27,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from _common import REPO_ROOT, print_table, write_results  # noqa: E402
+from _common import REPO_ROOT, print_table, results_name, write_results  # noqa: E402
 
 BUDGET_S = {"cold": 90.0, "warm": 20.0}
 
@@ -56,6 +56,10 @@ def main() -> int:
     args = ap.parse_args()
     if args.warm_runs < 1:
         ap.error(f"--warm-runs: expected >= 1, got {args.warm_runs}")
+    try:
+        results_name(args.name)  # before minutes of measuring, not after
+    except ValueError as exc:
+        ap.error(str(exc))
 
     runs: dict[str, list[dict]] = {"cold": [], "warm": []}
     with tempfile.TemporaryDirectory(prefix="demo_time_") as tmp:
