@@ -94,3 +94,61 @@ def test_a_fresh_process_uses_the_directory_it_is_given(tmp_path):
         env=env, capture_output=True, text=True, timeout=120, check=True,
     ).stdout.strip()
     assert Path(out) == tmp_path / "cache"
+
+
+def test_a_helper_takes_every_package_but_the_one_with_the_most_warm_ups():
+    def fake(module):
+        def fn():
+            pass
+        fn.__module__ = module
+        return fn
+
+    ext = [fake("reloc.extraction._kernels_fit"), fake("reloc.extraction._kernels_merge")]
+    rest = [fake("reloc.matching._kernels"), fake("reloc.mapping._kernels"), fake("sim._render_kernels")]
+    assert _numba._helper_share(ext + rest) == rest
+    assert _numba._helper_share(ext) == []  # one package: nothing to share
+    assert _numba._helper_share([]) == []
+
+
+_PACKAGE_A = """
+import numpy as np
+from reloc._numba import njit, register_warmup
+
+@njit
+def {name}(x):
+    s = 0.0
+    for v in x:
+        s += v * v
+    return s
+
+@register_warmup
+def _warm_{name}():
+    {name}(np.ones(3))
+"""
+
+
+def test_on_a_cold_cache_a_helper_compiles_its_share_and_this_process_loads_it(tmp_path):
+    """Two packages with tiny kernels, in a fresh process on an empty cache: the helper compiles the smaller
+    package's kernel (this process loads it from the cache: a hit, no miss), this process compiles the others."""
+    if _numba._usable_cores() < 2:
+        import pytest
+
+        pytest.skip("one usable core: no helper process is started")
+    for pkg, names in (("vp_small", ["small_k"]), ("vp_big", ["big_k1", "big_k2"])):
+        (tmp_path / pkg).mkdir()
+        (tmp_path / pkg / "__init__.py").write_text("")
+        for n in names:
+            (tmp_path / pkg / f"{n}.py").write_text(_PACKAGE_A.format(name=n))
+    code = ("from reloc import _numba\n"
+            "info = _numba.warm_up(('vp_small.small_k', 'vp_big.big_k1', 'vp_big.big_k2'), quiet=True)\n"
+            "import vp_small.small_k as s, vp_big.big_k1 as b\n"
+            "def st(d): return sum(d.stats.cache_hits.values()), sum(d.stats.cache_misses.values())\n"
+            "print(info['helper'], info['cold'], st(s.small_k), st(b.big_k1))\n"
+            "print(_numba.warm_up(quiet=True)['helper'])\n")
+    env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path / "cache"),
+               PYTHONPATH=os.pathsep.join([str(tmp_path), str(Path(__file__).resolve().parent.parent)]))
+    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=300)
+    assert out.returncode == 0, out.stderr
+    first, second = out.stdout.strip().splitlines()
+    assert first == "True 3 (1, 0) (0, 1)"  # helper ran; small_k loaded (hit), big_k1 compiled here (miss)
+    assert second == "False"  # warm now: no helper
