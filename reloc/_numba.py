@@ -127,16 +127,16 @@ def _start_helper(share: list) -> subprocess.Popen | None:
 
 
 def warm_up(modules: tuple[str, ...] = (), *, quiet: bool = False,
-            say: Callable[[str], None] | None = None, parallel: bool = True) -> dict:
+            say: Callable[[str], None] | None = None, parallel: bool | None = None) -> dict:
     """Import ``modules``, run every registered warm-up, and report compilation.
 
-    Returns ``{"kernels": n, "cold": n_without_cache, "seconds": t, "helper": bool}``. When some kernel has no cache
-    entry yet, one line goes to stderr before compiling (unless ``quiet``), through ``say`` when given
-    (``tqdm.write`` keeps it clear of a progress bar). Then, with ``parallel`` and two usable cores or more, a helper
-    process compiles the warm-ups of :func:`_helper_share` (when a kernel of theirs is cold) while this process
-    compiles the others; this process waits for it and runs those warm-ups after it, loading what it compiled from the cache
-    (``"helper"`` says whether one ran). A helper that fails costs nothing but its time: this process then compiles
-    what it left.
+    Returns ``{"kernels": n, "cold": n_without_cache, "seconds": t, "helper": bool}``. When some kernel has no
+    cache entry yet, one line goes to stderr before compiling (unless ``quiet``), through ``say`` when given
+    (``tqdm.write`` keeps it clear of a progress bar). Then, with ``parallel`` (default: unless the environment
+    sets ``RELOC_NUMBA_HELPER=0``) and two usable cores or more, a helper process compiles the warm-ups of
+    :func:`_helper_share` (when a kernel of theirs is cold) while this process compiles the others; this process
+    waits for it and runs those warm-ups after it, loading what it compiled from the cache (``"helper"`` says
+    whether one ran). A helper that fails costs nothing but its time: this process then compiles what it left.
     """
     import importlib
 
@@ -151,6 +151,8 @@ def warm_up(modules: tuple[str, ...] = (), *, quiet: bool = False,
             print(line, file=sys.stderr, flush=True)
     t0 = time.perf_counter()
     warmups = list(_WARMUPS)
+    if parallel is None:
+        parallel = os.environ.get("RELOC_NUMBA_HELPER", "1") != "0"
     share = _helper_share(warmups) if cold and parallel and _usable_cores() >= 2 else []
     shared_modules = {fn.__module__ for fn in share}
     if not any(getattr(getattr(d, "py_func", None), "__module__", None) in shared_modules and not _has_cache_index(d)

@@ -152,3 +152,7 @@ def test_on_a_cold_cache_a_helper_compiles_its_share_and_this_process_loads_it(t
     first, second = out.stdout.strip().splitlines()
     assert first == "True 3 (1, 0) (0, 1)"  # helper ran; small_k loaded (hit), big_k1 compiled here (miss)
     assert second == "False"  # warm now: no helper
+    env.update(NUMBA_CACHE_DIR=str(tmp_path / "cache_off"), RELOC_NUMBA_HELPER="0")
+    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=300)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.strip().splitlines()[0] == "False 3 (0, 1) (0, 1)"  # switched off: all compiled here
