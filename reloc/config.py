@@ -380,6 +380,12 @@ class EvaluationConfig(_Section):
         "the mapping run saw in part. 0 turns this off.",
     )
     refine_iterations: int = Field(2, ge=0, le=10, description="Least-squares refinements of the winning pose.")
+    refine_at_centroids: bool = Field(
+        True,
+        description="The refinement's translation fits each matched plane where the submap saw it (its centroid on "
+        "the map plane); off = Eq. 7's offsets, compared at the submap frame's origin (the latest camera), where a "
+        "normal a degree off its map plane moves the pose by its lever arm (17 cm for a plane 10 m from it).",
+    )
     refine_max_angle_deg: float = Field(
         2.0, gt=0, description="Refinement drops matched pairs whose normals disagree by more than this..."
     )

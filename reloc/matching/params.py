@@ -87,6 +87,7 @@ class MatchingParams:
     distinct_translation_m: float = 0.25
     distinct_rotation_rad: float = math.radians(5.0)
     refine_iterations: int = 2
+    refine_at_centroids: bool = True
     refine_max_angle_rad: float = math.radians(2.0)
     refine_max_offset_m: float = 0.04
     final_max_angle_rad: float = math.radians(5.0)
@@ -218,6 +219,7 @@ class MatchingParams:
             distinct_translation_m=e.distinct_translation_m,
             distinct_rotation_rad=r(e.distinct_rotation_deg),
             refine_iterations=e.refine_iterations,
+            refine_at_centroids=e.refine_at_centroids,
             refine_max_angle_rad=r(e.refine_max_angle_deg),
             refine_max_offset_m=e.refine_max_offset_m,
             final_max_angle_rad=r(e.final_max_angle_deg),

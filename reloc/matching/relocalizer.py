@@ -326,7 +326,10 @@ class Relocalizer:
         return out
 
     def refine(self, used: PlaneSet, match_row: np.ndarray, proj_row: np.ndarray) -> np.ndarray | None:
-        """Least-squares ``T_map_sub`` over the matched pairs of one hypothesis (weights: area x inlier ratio).
+        """Least-squares ``T_map_sub`` over the matched pairs of one hypothesis (weights: area x inlier ratio): the
+        rotation from the normals, the translation from the offsets (with ``refine_at_centroids``, each submap plane's
+        offset taken at its centroid, so that a pair whose normals differ a little does not pull the translation by
+        its distance from the submap frame's origin).
 
         Robust in two passes: pairs whose normal or centroid disagree with the first solution by more than the
         refinement tolerances (a small plane matched to a neighbour) are dropped and the pose is solved again.
@@ -341,7 +344,14 @@ class Relocalizer:
             iz = match_row[js]
             w = used.areas[js] * np.maximum(proj_row[js].astype(np.float64), 1e-3)
             R, gap = rotation_from_normal_pairs(used.normals[js], self.index.normals[iz], w)
-            t, cond = translation_from_offsets(self.index.normals[iz], used.offsets[js], self.index.offsets[iz], w)
+            nm = self.index.normals[iz]
+            if p.refine_at_centroids:
+                # Each pair's offset taken where its submap plane is (its centroid), not at the submap frame's
+                # origin, where a normal a degree off its map plane is off by its lever arm.
+                d_sub = -np.sum(nm * (used.centroids[js] @ R.T), axis=1)
+            else:
+                d_sub = used.offsets[js]
+            t, cond = translation_from_offsets(nm, d_sub, self.index.offsets[iz], w)
             if gap <= 1e-9 or not cond <= p.max_condition_number:
                 return None
             T = transform_from_rotation_translation(R, t)
