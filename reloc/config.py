@@ -537,6 +537,15 @@ class EvaluationConfig(_Section):
         description="With unrefined_rivals, how much less (matched planes plus explained fraction, as raw "
         "hypotheses) such a mode may have matched than the winner and still make the query ambiguous.",
     )
+    equal_rivals: bool = Field(
+        True,
+        description="With tight_decision, a winner over refined poses is rejected as ambiguous when another refined "
+        "pose, distinct from it, has as much evidence (matched planes less planes in conflict, plus the explained "
+        "fraction), however the density ranks them: the four quarter turns of a square room.",
+    )
+    equal_rival_margin: float = Field(
+        0.0, ge=0, description="With equal_rivals, how much less evidence such a pose may have and still count."
+    )
     rival_unknown_weight: float = Field(
         0.75, ge=0, le=1,
         description="With optimistic_rivals, how much of a match an unknown plane of a rival counts for (needs a "

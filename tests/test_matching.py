@@ -544,6 +544,46 @@ def test_a_twin_is_not_guessed_when_the_true_pose_has_no_least_squares_pose():
     assert wrong[True] == 0 and unrefined >= 1
 
 
+def test_a_refined_rival_with_as_much_evidence_makes_the_winner_ambiguous(living_relocalizer):
+    """Modes of a decision over refined poses, as a stereo view of the square room gave them: the density put the
+    winner 1.66 times ahead of a quarter turn that matched 13 planes to its 12, one in conflict each. Evidence is
+    matched planes less planes in conflict plus the explained fraction; a distinct pose with as much is a rival
+    whatever the density says, one with less is not, nor is a pose next to the winner or one walking through a
+    wall."""
+    from reloc.matching.relocalizer import _Hypotheses
+    from reloc.matching.scoring import Decision
+
+    def modes(n_matched, conflicts, explained, moved):
+        h = _Hypotheses(16)
+        h.R = np.stack([np.eye(3)] * len(moved))
+        h.R[1] = rotation_from_axis_angle(np.array([0.0, 0.0, math.pi / 2]))
+        h.t = np.array([[x, 0.0, 0.0] for x in moved])
+        h.n_matched = np.array(n_matched, np.int32)
+        h.explained = np.array(explained)
+        h.state = np.zeros((len(moved), 16), np.int8)
+        for i, c in enumerate(conflicts):
+            h.state[i, :c] = 2
+        return h
+
+    won = Decision(True, "", 0, 0.361, 0.217, 3)
+    judge = living_relocalizer._equal_rival
+    # 12 - 1 + 1.00 against 13 - 1 + 0.96: the quarter turn has as much.
+    tight = modes([12, 13, 9], [1, 1, 1], [1.0, 0.96, 0.7], [0.0, 3.0, 5.0])
+    out = judge(tight, won)
+    assert not out.accepted and out.best == -1
+    assert out.reason == ("ambiguous: a pose 3.00 m from the winner matches 13 planes and 0.96 of the submap, "
+                          "with as much evidence")
+    # Two more planes in conflict: 10.96 < 12, the winner stands.
+    assert judge(modes([12, 13, 9], [1, 3, 1], [1.0, 0.96, 0.7], [0.0, 3.0, 5.0]), won) is won
+    # The same evidence 10 cm and no rotation from the winner is the winner's own mode.
+    near = modes([12, 14, 9], [1, 1, 1], [1.0, 1.0, 0.7], [0.0, 0.1, 5.0])
+    near.R[1] = np.eye(3)
+    assert judge(near, won) is won
+    # A rival whose camera path walks through a wall is none.
+    tight.leader, tight.unrefined, tight.impossible = np.array([7, 8, 9]), np.zeros(0, int), np.array([8])
+    assert judge(tight, won) is won
+
+
 def test_free_fraction_of_an_unmatched_plane_matches_a_numpy_reference():
     # The map lacks the shelf's front; the mapping run saw empty space over part of where it stands. Verified at the
     # true pose, the view's shelf front is unmatched and reports the fraction of its samples in known free space.

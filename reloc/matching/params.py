@@ -82,6 +82,8 @@ class MatchingParams:
     optimistic_rivals: bool = True
     unrefined_rivals: bool = True
     unrefined_rival_margin: float = 0.5
+    equal_rivals: bool = True
+    equal_rival_margin: float = 0.0
     rival_unknown_weight: float = 0.75
     evidence_area_m2: float = 1.0
     distinct_translation_m: float = 0.25
@@ -214,6 +216,8 @@ class MatchingParams:
             optimistic_rivals=e.optimistic_rivals,
             unrefined_rivals=e.unrefined_rivals,
             unrefined_rival_margin=e.unrefined_rival_margin,
+            equal_rivals=e.equal_rivals,
+            equal_rival_margin=e.equal_rival_margin,
             rival_unknown_weight=e.rival_unknown_weight,
             evidence_area_m2=e.evidence_area_m2,
             distinct_translation_m=e.distinct_translation_m,

@@ -25,7 +25,15 @@ import numpy as np
 from reloc.matching import _kernels as K
 from reloc.matching.index import SURFACE_CELL_M, MapIndex, build_index, horizontal_facing, with_dense_extents
 from reloc.matching.params import MatchingParams
-from reloc.matching.scoring import Decision, decide, explains_enough, match_quality, ratio
+from reloc.matching.scoring import (
+    Decision,
+    decide,
+    distinct_from,
+    explains_enough,
+    in_conflict,
+    match_quality,
+    ratio,
+)
 from reloc.matching.selection import (
     candidate_triplets,
     gap_bounds,
@@ -482,9 +490,36 @@ class Relocalizer:
             decision = self._decide(tight, used, min_matched, timings, tight_modes)
             if decision.accepted and self.params.unrefined_rivals:
                 decision = self._unrefined_rival(hyps, tight, decision)
+            if decision.accepted and self.params.equal_rivals:
+                decision = self._equal_rival(tight, decision)
         if trace is not None:
             trace.update(decision=decision, judged=tight, modes=tight_modes, tight=True)
         return decision, tight
+
+    def _equal_rival(self, tight, decision: Decision) -> Decision:
+        """``decision`` (accepted, over the refined modes ``tight``), or a rejection when another mode, distinct from
+        the winner and not walking through a wall, has at least its evidence less ``equal_rival_margin``: matched
+        planes, less the planes in conflict, plus the explained fraction.
+
+        The density ranks modes by how many raw hypotheses landed near each, which with a noisy sensor varies by
+        chance between poses the submap cannot tell apart: in a stereo view of the square, point-symmetric room
+        (replicate A) four quarter turns matched 11-15 planes, explained all of the submap with one or two in
+        conflict, and one led the next by 1.66-1.69, past ``min_ambiguity_ratio``.
+        """
+        w = decision.best
+        evidence = tight.n_matched - np.count_nonzero(in_conflict(tight.state), axis=1) + tight.explained
+        rival = distinct_from(tight.R, tight.t, w, self.params)
+        rival &= evidence >= evidence[w] - self.params.equal_rival_margin
+        blocked = tight.blocked()
+        if blocked is not None:
+            rival &= ~blocked
+        if not rival.any():
+            return decision
+        a = int(np.flatnonzero(rival)[np.argmax(evidence[rival])])
+        away = float(np.linalg.norm(tight.t[a] - tight.t[w]))
+        reason = (f"ambiguous: a pose {away:.2f} m from the winner matches {int(tight.n_matched[a])} planes and "
+                  f"{tight.explained[a]:.2f} of the submap, with as much evidence")
+        return Decision(False, reason, -1, decision.score, decision.runner_up_score, decision.n_modes)
 
     def _unrefined_rival(self, hyps, tight, decision: Decision) -> Decision:
         """``decision`` (accepted, over the refined modes ``tight`` of ``hyps``), or a rejection when a mode with no

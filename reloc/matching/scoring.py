@@ -37,7 +37,7 @@ class Decision:
     n_modes: int
 
 
-def _distinct_from(R: np.ndarray, t: np.ndarray, a: int, params: MatchingParams) -> np.ndarray:
+def distinct_from(R: np.ndarray, t: np.ndarray, a: int, params: MatchingParams) -> np.ndarray:
     """(H,) bool: poses farther than the distinct thresholds from pose ``a``."""
     dt = np.linalg.norm(t - t[a], axis=1)
     cos = 0.5 * (np.einsum("hij,ij->h", R, R[a]) - 1.0)
@@ -221,7 +221,7 @@ def decide(
     members = np.flatnonzero((group == g_best) & eligible)
     best = int(members[np.argmax(quality[members])])
     score = float(density[g_best])
-    other = _distinct_from(R[leaders], t[leaders], int(np.flatnonzero(leaders == leaders[g_best])[0]), params)
+    other = distinct_from(R[leaders], t[leaders], int(np.flatnonzero(leaders == leaders[g_best])[0]), params)
     other &= np.arange(n_modes) != g_best
     runner = float(rival[other].max()) if other.any() else 0.0
     if score <= 0.0:
