@@ -396,7 +396,7 @@ def test_confirm_holds_a_true_pose_and_refines_a_nearby_one(living_relocalizer):
 
 
 def test_refined_pose_does_not_depend_on_where_the_submap_frame_has_its_origin():
-    """The same planes expressed in a frame 8 m from the camera (a fused window's latest camera can be that far from
+    """The same planes expressed in a frame 8.3 m from the camera (a fused window's latest camera can be as far from
     the planes it holds) must refine to the same map pose of those planes. Eq. 7 compares offsets at the submap
     frame's origin, where a normal a degree off its map plane is off by its lever arm; the refinement fits each
     plane at its centroid instead (``refine_at_centroids``)."""
