@@ -351,22 +351,22 @@ class Relocalizer:
                 return None
             iz = match_row[js]
             w = used.areas[js] * np.maximum(proj_row[js].astype(np.float64), 1e-3)
-            R, gap = rotation_from_normal_pairs(used.normals[js], self.index.normals[iz], w)
-            nm = self.index.normals[iz]
+            nm, dm = self.index.normals[iz], self.index.offsets[iz]
+            R, gap = rotation_from_normal_pairs(used.normals[js], nm, w)
+            c_rot = used.centroids[js] @ R.T
             if p.refine_at_centroids:
                 # Each pair's offset taken where its submap plane is (its centroid), not at the submap frame's
                 # origin, where a normal a degree off its map plane is off by its lever arm.
-                d_sub = -np.sum(nm * (used.centroids[js] @ R.T), axis=1)
+                d_sub = -np.sum(nm * c_rot, axis=1)
             else:
                 d_sub = used.offsets[js]
-            t, cond = translation_from_offsets(nm, d_sub, self.index.offsets[iz], w)
+            t, cond = translation_from_offsets(nm, d_sub, dm, w)
             if gap <= 1e-9 or not cond <= p.max_condition_number:
                 return None
             T = transform_from_rotation_translation(R, t)
             n_map = used.normals[js] @ R.T
-            ang = np.arccos(np.clip(np.sum(n_map * self.index.normals[iz], axis=1), -1.0, 1.0))
-            c_map = used.centroids[js] @ R.T + t
-            off = np.abs(np.sum(c_map * self.index.normals[iz], axis=1) + self.index.offsets[iz])
+            ang = np.arccos(np.clip(np.sum(n_map * nm, axis=1), -1.0, 1.0))
+            off = np.abs(np.sum((c_rot + t) * nm, axis=1) + dm)
             keep = (ang <= p.refine_max_angle_rad) & (off <= p.refine_max_offset_m)
             if keep.all():
                 break
@@ -507,7 +507,7 @@ class Relocalizer:
         conflict, and one led the next by 1.66-1.69, past ``min_ambiguity_ratio``.
         """
         w = decision.best
-        evidence = tight.n_matched - np.count_nonzero(in_conflict(tight.state), axis=1) + tight.explained
+        evidence = match_quality(tight.n_matched - np.count_nonzero(in_conflict(tight.state), axis=1), tight.explained)
         rival = distinct_from(tight.R, tight.t, w, self.params)
         rival &= evidence >= evidence[w] - self.params.equal_rival_margin
         blocked = tight.blocked()
