@@ -92,6 +92,7 @@ class MatchingParams:
     refine_at_centroids: bool = True
     refine_max_angle_rad: float = math.radians(2.0)
     refine_max_offset_m: float = 0.04
+    noisy_refine_max_angle_rad: float = math.radians(4.0)
     final_max_angle_rad: float = math.radians(5.0)
     final_max_offset_m: float = 0.08
 
@@ -226,6 +227,7 @@ class MatchingParams:
             refine_at_centroids=e.refine_at_centroids,
             refine_max_angle_rad=r(e.refine_max_angle_deg),
             refine_max_offset_m=e.refine_max_offset_m,
+            noisy_refine_max_angle_rad=r(e.noisy_refine_max_angle_deg),
             final_max_angle_rad=r(e.final_max_angle_deg),
             final_max_offset_m=e.final_max_offset_m,
         )
@@ -256,8 +258,8 @@ def scaled_to_sensor(params: MatchingParams, noise_model: str, noise_coeff: floa
     """``params`` with ``decision_max_offset_m`` and ``decision_conflict_m`` raised to ``DECISION_SIGMAS`` and
     ``CONFLICT_SIGMAS`` times the sensor's noise at 3 m (never lowered), ``occlusion`` off when that noise exceeds
     ``occlusion_max_sensor_sigma_m`` (and ``path_test`` with it: both trust the map's doorways to be open), and
-    ``min_projection_ratio`` lowered to ``noisy_min_projection_ratio`` when that noise exceeds
-    ``noisy_sensor_sigma_m``.
+    ``min_projection_ratio`` lowered to ``noisy_min_projection_ratio`` and ``refine_max_angle_rad`` raised to
+    ``noisy_refine_max_angle_rad`` when that noise exceeds ``noisy_sensor_sigma_m``.
 
     The projection test (Eq. 10) counts the verification samples of a submap plane within ``projection_inlier_m`` of
     the map plane. At their true poses, the suite's Kinect and ToF pairs have at least 11 of their 12 samples inside
@@ -271,6 +273,7 @@ def scaled_to_sensor(params: MatchingParams, noise_model: str, noise_coeff: floa
     each doorway's centre, against 0-8 with Kinect noise and 16-32 with ToF), and with the test on, true poses seen
     through those doorways lost to the next room (three wrong poses over two suites)."""
     sigma = sensor_sigma_m(noise_model, noise_coeff)
+    noisy = sigma > params.noisy_sensor_sigma_m
     return replace(
         params,
         decision_max_offset_m=max(params.decision_max_offset_m, DECISION_SIGMAS * sigma),
@@ -278,7 +281,9 @@ def scaled_to_sensor(params: MatchingParams, noise_model: str, noise_coeff: floa
         occlusion=params.occlusion and sigma <= params.occlusion_max_sensor_sigma_m,
         path_test=params.path_test and sigma <= params.occlusion_max_sensor_sigma_m,
         min_projection_ratio=(min(params.min_projection_ratio, params.noisy_min_projection_ratio)
-                              if sigma > params.noisy_sensor_sigma_m else params.min_projection_ratio),
+                              if noisy else params.min_projection_ratio),
+        refine_max_angle_rad=(max(params.refine_max_angle_rad, params.noisy_refine_max_angle_rad)
+                              if noisy else params.refine_max_angle_rad),
     )
 
 
