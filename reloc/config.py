@@ -394,8 +394,8 @@ class EvaluationConfig(_Section):
         4.0, gt=0,
         description="refine_max_angle_deg for a sensor whose depth noise at 3 m is above noisy_sensor_sigma_m (never "
         "lowered): the stereo camera's small faces come out 2-4 deg off their map planes, and a true pose whose "
-        "faces across the view were all dropped had no least-squares pose (the suite's stereo: 8 more true poses "
-        "over the tuned suite and replicate A, no false positive; Kinect and ToF keep 2 deg).",
+        "faces across the view were all dropped had no least-squares pose (the suite's stereo: +4, +4 and +1 true "
+        "poses on the tuned suite and replicates A and B, no false positive; Kinect and ToF keep 2 deg).",
     )
     final_max_angle_deg: float = Field(
         5.0, gt=0,

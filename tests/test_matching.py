@@ -930,7 +930,7 @@ def test_a_noisy_sensors_refinement_keeps_faces_a_few_degrees_off_their_map_plan
     # A stereo camera's faces come out a few degrees off their map planes. With every plane facing along x 3 deg off
     # (turned about the vertical through its centroid), a Kinect-class refinement (2 deg) drops them all and has no
     # least-squares pose; a sensor noisier than 2 cm at 3 m refines with them (4 deg). Its rotation lies between the
-    # walls' and the turned faces' (under 3 deg off), its translation within the suite's 0.25 m of the truth.
+    # walls' and the turned faces' (under 3 deg off; 2.1 deg measured), its translation within 15 cm (11.5 cm).
     from dataclasses import replace as dc_replace
 
     from reloc.config import Config
@@ -949,7 +949,7 @@ def test_a_noisy_sensors_refinement_keeps_faces_a_few_degrees_off_their_map_plan
         reloc = Relocalizer(planes, params)
         used, _, vs_ptr, vs_pts = reloc.prepare(sub)
         v = reloc.verify(used, vs_ptr, vs_pts, T[None, :3, :3].copy(), T[None, :3, 3].copy(),
-                         np.zeros((1, 6), np.int32), require_triplet=False)
+                         np.array([[0, 1, 2, 0, 0, 0]], np.int32), require_triplet=False)
         along_x = np.abs((used.normals @ T[:3, :3].T)[:, 0]) > 0.9
         assert np.count_nonzero(along_x & (v.match[0] >= 0)) >= 2
         up = T[:3, :3].T @ np.array([0.0, 0.0, 1.0])  # the vertical in the camera frame
@@ -960,7 +960,7 @@ def test_a_noisy_sensors_refinement_keeps_faces_a_few_degrees_off_their_map_plan
         poses[name] = reloc.refine(tilted, v.match[0], v.proj[0])
     assert poses["kinect"] is None
     t_err, r_err = pose_error(poses["stereo"], T)
-    assert t_err < 0.25 and 0.1 < r_err < 3.0, (t_err, r_err)
+    assert t_err < 0.15 and 0.1 < r_err < 3.0, (t_err, r_err)
 
 
 def test_a_noisy_sensor_matches_planes_with_fewer_samples_on_the_map_plane():
