@@ -926,6 +926,20 @@ def test_matching_params_with_changes_named_fields_and_refuses_the_rest():
             base.with_(**changes)
 
 
+def _living_view_kinect_and_stereo():
+    """The living room's planes (a map), a view of it (``T_map_cam`` and its planes) and the matching parameters of
+    a Kinect-class sensor and of a stereo camera noisier than 2 cm at 3 m, as :meth:`MatchingParams.from_config`
+    scales them."""
+    from reloc.config import Config
+
+    rects = furnished_room("living")
+    T = look_at((2.0, 2.5, 1.2), (5.5, 3.5, 0.9))
+    kinect = MatchingParams.from_config(Config())
+    stereo = MatchingParams.from_config(
+        Config.model_validate({"extraction": {"noise_model": "stereo", "noise_coeff": 2.4e-3}}))
+    return scene_planes(rects), T, view_planes(rects, T), kinect, stereo
+
+
 def test_a_noisy_sensors_refinement_keeps_faces_a_few_degrees_off_their_map_planes():
     # A stereo camera's faces come out a few degrees off their map planes. With every plane facing along x 3 deg off
     # (turned about the vertical through its centroid), a Kinect-class refinement (2 deg) drops them all and has no
@@ -933,15 +947,7 @@ def test_a_noisy_sensors_refinement_keeps_faces_a_few_degrees_off_their_map_plan
     # walls' and the turned faces' (under 3 deg off; 2.1 deg measured), its translation within 15 cm (11.5 cm).
     from dataclasses import replace as dc_replace
 
-    from reloc.config import Config
-
-    rects = furnished_room("living")
-    planes = scene_planes(rects)
-    T = look_at((2.0, 2.5, 1.2), (5.5, 3.5, 0.9))
-    sub = view_planes(rects, T)
-    kinect = MatchingParams.from_config(Config())
-    stereo = MatchingParams.from_config(
-        Config.model_validate({"extraction": {"noise_model": "stereo", "noise_coeff": 2.4e-3}}))
+    planes, T, sub, kinect, stereo = _living_view_kinect_and_stereo()
     assert math.degrees(kinect.refine_max_angle_rad) == pytest.approx(2.0)
     assert math.degrees(stereo.refine_max_angle_rad) == pytest.approx(4.0)
     poses = {}
@@ -969,16 +975,9 @@ def test_a_noisy_sensor_matches_planes_with_fewer_samples_on_the_map_plane():
     # within the 8 cm of the projection test) no longer matches at the true pose with the default share (0.5), and
     # matches the same map plane with the share a sensor noisier than 2 cm at 3 m gets (0.3); a Kinect-class
     # sensor keeps 0.5.
-    from reloc.config import Config
     from reloc.matching.params import scaled_to_sensor
 
-    rects = furnished_room("living")
-    planes = scene_planes(rects)
-    T = look_at((2.0, 2.5, 1.2), (5.5, 3.5, 0.9))
-    sub = view_planes(rects, T)
-    kinect = MatchingParams.from_config(Config())
-    stereo = MatchingParams.from_config(
-        Config.model_validate({"extraction": {"noise_model": "stereo", "noise_coeff": 2.4e-3}}))
+    planes, T, sub, kinect, stereo = _living_view_kinect_and_stereo()
     assert kinect.min_projection_ratio == 0.5 and stereo.min_projection_ratio == 0.3
     assert scaled_to_sensor(MatchingParams(noisy_min_projection_ratio=1.0), "stereo", 2.4e-3).min_projection_ratio \
         == 0.5  # never raised: the paper's rules keep theirs
