@@ -603,7 +603,7 @@ def test_free_fraction_of_an_unmatched_plane_matches_a_numpy_reference():
     sub = view_planes(rects, T)
     used, _, vs_ptr, vs_pts = reloc.prepare(sub)
     v = reloc.verify(used, vs_ptr, vs_pts, T[None, :3, :3].copy(), T[None, :3, 3].copy(),
-                     np.zeros((1, 6), np.int32), require_triplet=False)
+                     np.array([[0, 1, 2, 0, 0, 0]], np.int32), require_triplet=False)
     n_map = used.normals @ T[:3, :3].T
     c_map = used.centroids @ T[:3, :3].T + T[:3, 3]
     j = int(np.argmin(np.linalg.norm(c_map - np.asarray(shelf_front.center), axis=1) + 10 * (n_map[:, 0] > -0.9)))
@@ -992,7 +992,7 @@ def test_a_noisy_sensor_matches_planes_with_fewer_samples_on_the_map_plane():
         vs_pts = vs_pts.copy()
         vs_pts[vs_ptr[j]: vs_ptr[j] + 7] += moved * used.normals[j]
         v = reloc.verify(used, vs_ptr, vs_pts, T[None, :3, :3].copy(), T[None, :3, 3].copy(),
-                         np.zeros((1, 6), np.int32), require_triplet=False)
+                         np.array([[0, 1, 2, 0, 0, 0]], np.int32), require_triplet=False)
         match[name] = int(v.match[0, j])
     assert match["as seen"] >= 0
     assert match["kinect"] == -1
