@@ -25,6 +25,15 @@ from reloc.planes import transform_planes
 from reloc.transforms import invert, pose_error, rotation_from_axis_angle, transform_from_rotation_translation
 
 
+def _verify_at(reloc, used, vs_ptr, vs_pts, *Ts, **kwargs):
+    """``reloc.verify`` of the given poses ``Ts`` (4x4 ``T_map_cam``), every plane judged alike, with a candidate row
+    of distinct submap planes first (its map side unused), as :meth:`Relocalizer.confirm` verifies a given pose."""
+    R = np.ascontiguousarray(np.stack([T[:3, :3] for T in Ts]))
+    t = np.ascontiguousarray(np.stack([T[:3, 3] for T in Ts]))
+    cand = np.array([[0, 1, 2, 0, 0, 0]] * len(Ts), np.int32)
+    return reloc.verify(used, vs_ptr, vs_pts, R, t, cand, require_triplet=False, **kwargs)
+
+
 def random_rotation(rng) -> np.ndarray:
     axis = rng.normal(size=3)
     return rotation_from_axis_angle(axis / np.linalg.norm(axis) * rng.uniform(0, math.pi))
@@ -602,8 +611,7 @@ def test_free_fraction_of_an_unmatched_plane_matches_a_numpy_reference():
     T = look_at((2.0, 2.5, 1.2), (5.5, 3.5, 0.9))
     sub = view_planes(rects, T)
     used, _, vs_ptr, vs_pts = reloc.prepare(sub)
-    v = reloc.verify(used, vs_ptr, vs_pts, T[None, :3, :3].copy(), T[None, :3, 3].copy(),
-                     np.array([[0, 1, 2, 0, 0, 0]], np.int32), require_triplet=False)
+    v = _verify_at(reloc, used, vs_ptr, vs_pts, T)
     n_map = used.normals @ T[:3, :3].T
     c_map = used.centroids @ T[:3, :3].T + T[:3, 3]
     j = int(np.argmin(np.linalg.norm(c_map - np.asarray(shelf_front.center), axis=1) + 10 * (n_map[:, 0] > -0.9)))
@@ -647,9 +655,7 @@ def test_a_wall_put_across_a_corridor_is_in_free_space():
         reloc = Relocalizer(pm, replace(MatchingParams(), free_far_min_fraction=frac, verify_samples_per_plane=24))
         used, _, vs_ptr, vs_pts = reloc.prepare(sub)
         wall = int(np.argmax((used.normals @ T[:3, :3].T)[:, 0]))  # the end wall faces +x
-        cand = np.array([[0, 1, 2, 0, 0, 0]] * 2, np.int32)  # distinct submap planes first (map side unused)
-        v = reloc.verify(used, vs_ptr, vs_pts, np.stack([T[:3, :3], T_rival[:3, :3]]),
-                         np.stack([T[:3, 3], T_rival[:3, 3]]), cand, require_triplet=False)
+        v = _verify_at(reloc, used, vs_ptr, vs_pts, T, T_rival)
         assert v.match[0, wall] >= 0 and v.passed[0]  # the true pose
         states[frac] = (int(v.state[1, wall]), float(v.free_frac[1, wall]), bool(v.passed[1]))
     state, free_frac, passed = states[0.0]
@@ -685,9 +691,7 @@ def test_a_plane_behind_a_map_wall_is_hidden_but_not_one_seen_through_a_doorway(
         gap = np.linalg.norm(used.centroids @ T[:3, :3].T + T[:3, 3] - np.array(beyond.center), axis=1)
         j = int(np.argmin(gap))  # the room beyond's wall
         assert gap[j] < 0.05 and len(used) >= 5
-        cand = np.array([[0, 1, 2, 0, 0, 0]], np.int32)  # distinct submap planes first (map side unused)
-        v = reloc.verify(used, vs_ptr, vs_pts, T[None, :3, :3], T[None, :3, 3], cand, require_triplet=False,
-                         tight=True)
+        v = _verify_at(reloc, used, vs_ptr, vs_pts, T, tight=True)
         assert v.state[0, j] == 1 and v.n_matched[0] == len(used) - 1  # all matched but j, unknown to the map
         frac = reloc.mark_hidden(used, vs_ptr, vs_pts, T[None, :3, :3], T[None, :3, 3], v.state)
         states[name] = (int(v.state[0, j]), float(frac[0, j]))
@@ -954,8 +958,7 @@ def test_a_noisy_sensors_refinement_keeps_faces_a_few_degrees_off_their_map_plan
     for name, params in (("kinect", kinect), ("stereo", stereo)):
         reloc = Relocalizer(planes, params)
         used, _, vs_ptr, vs_pts = reloc.prepare(sub)
-        v = reloc.verify(used, vs_ptr, vs_pts, T[None, :3, :3].copy(), T[None, :3, 3].copy(),
-                         np.array([[0, 1, 2, 0, 0, 0]], np.int32), require_triplet=False)
+        v = _verify_at(reloc, used, vs_ptr, vs_pts, T)
         along_x = np.abs((used.normals @ T[:3, :3].T)[:, 0]) > 0.9
         assert np.count_nonzero(along_x & (v.match[0] >= 0)) >= 2
         up = T[:3, :3].T @ np.array([0.0, 0.0, 1.0])  # the vertical in the camera frame
@@ -991,8 +994,7 @@ def test_a_noisy_sensor_matches_planes_with_fewer_samples_on_the_map_plane():
         assert vs_ptr[j + 1] - vs_ptr[j] == 12
         vs_pts = vs_pts.copy()
         vs_pts[vs_ptr[j]: vs_ptr[j] + 7] += moved * used.normals[j]
-        v = reloc.verify(used, vs_ptr, vs_pts, T[None, :3, :3].copy(), T[None, :3, 3].copy(),
-                         np.array([[0, 1, 2, 0, 0, 0]], np.int32), require_triplet=False)
+        v = _verify_at(reloc, used, vs_ptr, vs_pts, T)
         match[name] = int(v.match[0, j])
     assert match["as seen"] >= 0
     assert match["kinect"] == -1

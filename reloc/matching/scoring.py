@@ -23,7 +23,8 @@ from reloc.matching import _kernels as K
 from reloc.matching.params import MatchingParams
 
 __all__ = [
-    "Decision", "frequency_weights", "pose_density", "decide", "explains_enough", "in_conflict", "match_quality",
+    "Decision", "frequency_weights", "pose_density", "decide", "distinct_from", "explains_enough", "in_conflict",
+    "match_quality",
 ]
 
 
