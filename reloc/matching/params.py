@@ -93,6 +93,7 @@ class MatchingParams:
     refine_max_angle_rad: float = math.radians(2.0)
     refine_max_offset_m: float = 0.04
     noisy_refine_max_angle_rad: float = math.radians(4.0)
+    refine_fallback_max_angle_rad: float = math.radians(3.0)
     final_max_angle_rad: float = math.radians(5.0)
     final_max_offset_m: float = 0.08
 
@@ -228,6 +229,7 @@ class MatchingParams:
             refine_max_angle_rad=r(e.refine_max_angle_deg),
             refine_max_offset_m=e.refine_max_offset_m,
             noisy_refine_max_angle_rad=r(e.noisy_refine_max_angle_deg),
+            refine_fallback_max_angle_rad=r(e.refine_fallback_max_angle_deg),
             final_max_angle_rad=r(e.final_max_angle_deg),
             final_max_offset_m=e.final_max_offset_m,
         )

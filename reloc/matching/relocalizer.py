@@ -345,33 +345,52 @@ class Relocalizer:
         """
         p = self.params
         js = np.flatnonzero(match_row >= 0)
-        T = None
-        for _ in range(2):
-            if len(js) < 3:
-                return None
-            iz = match_row[js]
-            w = used.areas[js] * np.maximum(proj_row[js].astype(np.float64), 1e-3)
-            nm, dm = self.index.normals[iz], self.index.offsets[iz]
-            R, gap = rotation_from_normal_pairs(used.normals[js], nm, w)
-            c_rot = used.centroids[js] @ R.T
-            if p.refine_at_centroids:
-                # Each pair's offset taken where its submap plane is (its centroid), not at the submap frame's
-                # origin, where a normal a degree off its map plane is off by its lever arm.
-                d_sub = -np.sum(nm * c_rot, axis=1)
-            else:
-                d_sub = used.offsets[js]
-            t, cond = translation_from_offsets(nm, d_sub, dm, w)
-            if gap <= 1e-9 or not cond <= p.max_condition_number:
-                return None
-            T = transform_from_rotation_translation(R, t)
-            n_map = used.normals[js] @ R.T
-            ang = np.arccos(np.clip(np.sum(n_map * nm, axis=1), -1.0, 1.0))
-            off = np.abs(np.sum((c_rot + t) * nm, axis=1) + dm)
-            keep = (ang <= p.refine_max_angle_rad) & (off <= p.refine_max_offset_m)
-            if keep.all():
-                break
-            js = js[keep]
-        return T
+        first = self._solve_pairs(used, match_row, proj_row, js)
+        if first is None:
+            return None
+        T, ang, off = first
+        keep = (ang <= p.refine_max_angle_rad) & (off <= p.refine_max_offset_m)
+        if keep.all():
+            return T
+        second = self._solve_pairs(used, match_row, proj_row, js[keep])
+        if second is not None:
+            return second[0]
+        if p.refine_fallback_max_angle_rad <= p.refine_max_angle_rad:
+            return None
+        # The pairs within the angle do not fix the pose (a curved object's facets, a few degrees off the map planes
+        # they lie on, were all that held it along one axis): keep those within the fallback angle instead.
+        keep = (ang <= p.refine_fallback_max_angle_rad) & (off <= p.refine_max_offset_m)
+        if keep.all():
+            return T
+        third = self._solve_pairs(used, match_row, proj_row, js[keep])
+        return None if third is None else third[0]
+
+    def _solve_pairs(self, used: PlaneSet, match_row: np.ndarray, proj_row: np.ndarray, js: np.ndarray
+                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+        """One least-squares pass of :meth:`refine` over the submap planes ``js``: ``(T_map_sub, angle, offset)``,
+        each pair's normal angle and centroid offset under that pose, or None when fewer than three pairs or they do
+        not fix the pose."""
+        p = self.params
+        if len(js) < 3:
+            return None
+        iz = match_row[js]
+        w = used.areas[js] * np.maximum(proj_row[js].astype(np.float64), 1e-3)
+        nm, dm = self.index.normals[iz], self.index.offsets[iz]
+        R, gap = rotation_from_normal_pairs(used.normals[js], nm, w)
+        c_rot = used.centroids[js] @ R.T
+        if p.refine_at_centroids:
+            # Each pair's offset taken where its submap plane is (its centroid), not at the submap frame's
+            # origin, where a normal a degree off its map plane is off by its lever arm.
+            d_sub = -np.sum(nm * c_rot, axis=1)
+        else:
+            d_sub = used.offsets[js]
+        t, cond = translation_from_offsets(nm, d_sub, dm, w)
+        if gap <= 1e-9 or not cond <= p.max_condition_number:
+            return None
+        n_map = used.normals[js] @ R.T
+        ang = np.arccos(np.clip(np.sum(n_map * nm, axis=1), -1.0, 1.0))
+        off = np.abs(np.sum((c_rot + t) * nm, axis=1) + dm)
+        return transform_from_rotation_translation(R, t), ang, off
 
     def _probe_twins(self, used, vs_ptr, vs_pts, facing, distances, sub_ext, hyps, winner_cand, winner_match,
                      counts) -> None:
