@@ -983,8 +983,8 @@ def test_the_refinement_falls_back_to_a_wider_angle_only_when_the_pairs_within_i
     # The faces along x are all that fix the view's pose along x. Turned 3 deg, the pairs within 2 deg leave it
     # unfixed: without the fallback there is no least-squares pose, with it (3 deg, the default) the refinement keeps
     # the faces (after its first pass, which shares the 3 deg between walls and faces) and the pose is within 15 cm
-    # and 3 deg (11.5 cm, 2.1 deg measured). Turned 2.5 deg, the first pass leaves every pair within 2 deg: the same
-    # pose with and without the fallback. Turned 5 deg, the faces are dropped even with it.
+    # and 3 deg (11.5 cm, 2.1 deg measured). Turned 2.5 deg, the pairs within 2 deg fix the pose: the same pose with
+    # and without the fallback. Turned 5 deg, the faces are dropped even with it.
     from dataclasses import replace as dc_replace
 
     planes, T, sub, kinect, _ = _living_view_kinect_and_stereo()

@@ -340,8 +340,10 @@ class Relocalizer:
         its distance from the submap frame's origin).
 
         Robust in two passes: pairs whose normal or centroid disagree with the first solution by more than the
-        refinement tolerances (a small plane matched to a neighbour) are dropped and the pose is solved again.
-        Returns None when fewer than three pairs remain or they do not fix the pose.
+        refinement tolerances (a small plane matched to a neighbour) are dropped and the pose is solved again. When
+        the pairs left do not fix the pose, those within ``refine_fallback_max_angle_rad`` of the first solution are
+        kept instead (facets of a curved object a few degrees off their map planes). Returns None when fewer than
+        three pairs remain or they do not fix the pose.
         """
         p = self.params
         js = np.flatnonzero(match_row >= 0)
