@@ -200,9 +200,9 @@ def parse_overrides(items: Iterable[str], option: str = "--set") -> dict:
     return out
 
 
-def results_name(name: str) -> str:
+def results_name(name: str, flag: str = "--name") -> str:
     """``name`` if it is a plain file stem for ``benchmarks/results`` (checked when a script starts, not after an
-    hour of measuring), else ValueError."""
+    hour of measuring), else ValueError naming the option ``flag`` it came from."""
     if not name or any(c in name for c in "/\\") or name in (".", ".."):
-        raise ValueError(f"--name: expected a plain file stem, got {name!r}")
+        raise ValueError(f"{flag}: expected a plain file stem for benchmarks/results/, got {name!r}")
     return name

@@ -35,7 +35,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from _common import print_table, write_results  # noqa: E402
+from _common import print_table, results_name, write_results  # noqa: E402
 
 
 def rss_mb() -> float:
@@ -241,6 +241,10 @@ def main(argv=None) -> int:
     ap.add_argument("--config", default=None, help="YAML config (defaults otherwise).")
     ap.add_argument("--out", default="live_loop", help="Results file stem under benchmarks/results.")
     args = ap.parse_args(argv)
+    try:
+        results_name(args.out, "--out")  # before the run, not after it
+    except ValueError as e:
+        ap.error(str(e))
     if args.frames < 1 or args.pool < 3:
         ap.error("--frames must be >= 1 and --pool >= 3")
 

@@ -40,7 +40,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from _common import print_table, write_results  # noqa: E402
+from _common import print_table, results_name, write_results  # noqa: E402
 
 VARIANTS = ("trace", "enabled", "disabled")
 
@@ -184,6 +184,10 @@ def main(argv=None) -> int:
     ap.add_argument("--repeats", type=int, default=9, help="Blocks per variant of the direct measurement.")
     ap.add_argument("--out", default="profiling_overhead", help="Result file stem in benchmarks/results.")
     args = ap.parse_args(argv)
+    try:
+        results_name(args.out, "--out")  # before the run, not after it
+    except ValueError as e:
+        ap.error(str(e))
     size = tuple(int(x) for x in args.size.lower().split("x")) if args.size else None
 
     from reloc._numba import warm_up

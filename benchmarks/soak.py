@@ -47,7 +47,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from _common import print_table, write_results  # noqa: E402
+from _common import print_table, results_name, write_results  # noqa: E402
 
 from reloc.profiling import Profiler  # noqa: E402
 
@@ -464,6 +464,11 @@ def main(argv=None) -> int:
     ap.add_argument("--out", default=None, help="Results file stem under benchmarks/results (default soak, or "
                                                 "soak_quick with --quick).")
     args = ap.parse_args(argv)
+    out = args.out or ("soak_quick" if args.quick else "soak")
+    try:
+        results_name(out, "--out")  # before the run, not after it
+    except ValueError as e:
+        ap.error(str(e))
     n = 3000 if args.quick else args.frames
     faults = SoakFaults(**{k: getattr(args, k) for k in SoakFaults.__dataclass_fields__})
     if args.quick and faults.camera_disconnect_every > n // 2:
@@ -517,7 +522,7 @@ def main(argv=None) -> int:
     print("counts consistent, no false relocalization" if not problems else f"PROBLEMS: {problems}")
     params = {**vars(args), "frames": n, "faults": faults.__dict__,
               "note": "timings on a shared 2-core machine (other jobs running): expect noise"}
-    path = write_results(args.out or ("soak_quick" if args.quick else "soak"), params=params, results=res)
+    path = write_results(out, params=params, results=res)
     print(f"wrote {path}")
     return 0 if not problems else 1
 

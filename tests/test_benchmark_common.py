@@ -46,6 +46,11 @@ def test_the_benchmark_scripts_refuse_a_bad_name_before_measuring():
         done = subprocess.run([sys.executable, str(root / "benchmarks" / script), "--name", "a/b"],
                               capture_output=True, text=True, timeout=120)
         assert done.returncode == 2 and "--name: expected a plain file stem" in done.stderr, (script, done.stderr)
+    # The long runs name their results file with --out (a 9,000-frame soak once ran 5 minutes, then refused it).
+    for script in ("soak.py", "live_loop.py", "profiling_overhead.py"):
+        done = subprocess.run([sys.executable, str(root / "benchmarks" / script), "--out", "/tmp/x.json"],
+                              capture_output=True, text=True, timeout=120)
+        assert done.returncode == 2 and "--out: expected a plain file stem" in done.stderr, (script, done.stderr)
 
 
 def test_the_latency_benchmarks_two_floor_map_holds_both_floors():
