@@ -403,7 +403,7 @@ class EvaluationConfig(_Section):
         "this angle instead (0, or at most that angle: off). A curved object's facets come out a few degrees off the "
         "map planes they lie on, and a true pose held along one axis only by them had no least-squares pose "
         "(2026-11-29: +1 and +2 true poses on the held-out replicates A and B with Kinect noise and +1 on B with ToF, "
-        "none lost and no false positive added; 4 deg lost three true poses to rivals it refined).",
+        "none lost and no false positive added; 4 deg lost three true poses, two of them to rivals it refined).",
     )
     final_max_angle_deg: float = Field(
         5.0, gt=0,

@@ -949,7 +949,7 @@ def _refined_with_faces_turned(planes, T, sub, params, degrees):
     along the map's x axis (the only ones that fix the pose along x) is turned by ``degrees`` about the vertical
     through its centroid, as a noisy camera's or a curved object's faces come out a few degrees off their map planes.
     """
-    from dataclasses import replace as dc_replace
+    from dataclasses import replace
 
     reloc = Relocalizer(planes, params)
     used, _, vs_ptr, vs_pts = reloc.prepare(sub)
@@ -960,7 +960,7 @@ def _refined_with_faces_turned(planes, T, sub, params, degrees):
     normals = used.normals.copy()
     normals[along_x] = normals[along_x] @ rotation_from_axis_angle(up * math.radians(degrees)).T
     offsets = -np.einsum("ij,ij->i", normals, used.centroids)
-    return reloc.refine(dc_replace(used, normals=normals, offsets=offsets), v.match[0], v.proj[0])
+    return reloc.refine(replace(used, normals=normals, offsets=offsets), v.match[0], v.proj[0])
 
 
 def test_a_noisy_sensors_refinement_keeps_faces_a_few_degrees_off_their_map_planes():
@@ -968,12 +968,12 @@ def test_a_noisy_sensors_refinement_keeps_faces_a_few_degrees_off_their_map_plan
     # a refinement that drops pairs more than 2 deg off (the Kinect-class angle, without its fallback) has no
     # least-squares pose; a sensor noisier than 2 cm at 3 m refines with them (4 deg). Its rotation lies between the
     # walls' and the turned faces' (under 3 deg off; 2.1 deg measured), its translation within 15 cm (11.5 cm).
-    from dataclasses import replace as dc_replace
+    from dataclasses import replace
 
     planes, T, sub, kinect, stereo = _living_view_kinect_and_stereo()
     assert math.degrees(kinect.refine_max_angle_rad) == pytest.approx(2.0)
     assert math.degrees(stereo.refine_max_angle_rad) == pytest.approx(4.0)
-    strict = dc_replace(kinect, refine_fallback_max_angle_rad=0.0)
+    strict = replace(kinect, refine_fallback_max_angle_rad=0.0)
     assert _refined_with_faces_turned(planes, T, sub, strict, 3.0) is None
     t_err, r_err = pose_error(_refined_with_faces_turned(planes, T, sub, stereo, 3.0), T)
     assert t_err < 0.15 and 0.1 < r_err < 3.0, (t_err, r_err)
@@ -985,11 +985,11 @@ def test_the_refinement_falls_back_to_a_wider_angle_only_when_the_pairs_within_i
     # the faces (after its first pass, which shares the 3 deg between walls and faces) and the pose is within 15 cm
     # and 3 deg (11.5 cm, 2.1 deg measured). Turned 2.5 deg, the pairs within 2 deg fix the pose: the same pose with
     # and without the fallback. Turned 5 deg, the faces are dropped even with it.
-    from dataclasses import replace as dc_replace
+    from dataclasses import replace
 
     planes, T, sub, kinect, _ = _living_view_kinect_and_stereo()
     assert math.degrees(kinect.refine_fallback_max_angle_rad) == pytest.approx(3.0)
-    strict = dc_replace(kinect, refine_fallback_max_angle_rad=0.0)
+    strict = replace(kinect, refine_fallback_max_angle_rad=0.0)
     assert _refined_with_faces_turned(planes, T, sub, strict, 3.0) is None
     t_err, r_err = pose_error(_refined_with_faces_turned(planes, T, sub, kinect, 3.0), T)
     assert t_err < 0.15 and 0.1 < r_err < 3.0, (t_err, r_err)
