@@ -491,6 +491,12 @@ class EvaluationConfig(_Section):
         "surfaces; the occlusion test) take their area off that support along the weakest direction: a meeting room "
         "seen through a doorway, placed in a corridor pinned by one cabinet face, is not a pose.",
     )
+    max_conflict_area_m2: float = Field(
+        1.0, ge=0,
+        description="A pose under which a submap plane of this area or more lies off a map surface facing the same "
+        "way (in conflict with the map) is rejected, however much else it matches (0 = off; off for a sensor noisier "
+        "than occlusion_max_sensor_sigma_m).",
+    )
     match_max_angle_deg: float = Field(5.0, gt=0, description="A submap plane matches a map plane within this angle...")
     match_max_offset_m: float = Field(0.08, gt=0, description="...and this offset, after the transform.")
     kde_sigma_translation_m: float = Field(0.1, gt=0, description="Eq. 14 information matrix: translation scale.")

@@ -840,6 +840,39 @@ def test_decision_offsets_follow_the_sensor_noise():
     assert MatchingParams.from_config(wide).occlusion
 
 
+def test_a_large_plane_in_conflict_with_the_map_vetoes_the_pose():
+    """A panel 8 cm in front of the living room's x = 6 wall, unknown to the map, is in conflict with the wall at the
+    true pose. At 1.54 m^2 it vetoes the pose (``confirm`` and ``locate`` alike), however much else matches; at 0.99
+    m^2, under the 1 m^2 of ``max_conflict_area_m2``, the pose stands, and with the test off (0) both do, exactly.
+    A sensor too noisy for the occlusion test gets the test off too."""
+    from reloc.config import Config
+    from reloc.evaluation.synthetic import Rect
+
+    rects = furnished_room("living")
+    T = look_at((1.0, 1.5, 1.4), (6.0, 3.5, 1.0))
+    outcomes = {}
+    for half in (0.7, 0.45):
+        sub = view_planes(rects + [Rect((5.92, 2.5, 1.3), (-1, 0, 0), (0, 1, 0), half, 0.55)], T)
+        panel = int(np.argmin(np.abs(sub.areas - 2 * half * 1.1)))
+        assert sub.areas[panel] == pytest.approx(2 * half * 1.1, abs=0.02)
+        for params in (MatchingParams(), MatchingParams(max_conflict_area_m2=0.0)):
+            reloc = Relocalizer(scene_planes(rects), params)
+            used, order, vs_ptr, vs_pts = reloc.prepare(sub)
+            state = _verify_at(reloc, used, vs_ptr, vs_pts, T, tight=True).state[0]
+            assert state[int(np.flatnonzero(order == panel)[0])] == 2  # in conflict with the wall
+            for how, r in (("confirm", reloc.confirm(sub, T)), ("locate", reloc.locate(sub))):
+                if r.relocalized:
+                    assert pose_error(r.T_map_cam, T)[0] < 1e-6
+                outcomes[half, params.max_conflict_area_m2, how] = r.reason or "relocalized"
+    for how in ("confirm", "locate"):
+        assert outcomes[0.7, 1.0, how] == ("contradicted by the map: a plane of 1.54 m^2 lies off a map surface "
+                                           "facing the same way (at most 1.0 m^2 may)")
+        assert outcomes[0.45, 1.0, how] == outcomes[0.7, 0.0, how] == outcomes[0.45, 0.0, how] == "relocalized"
+    stereo = Config.model_validate({"extraction": {"noise_model": "stereo", "noise_coeff": 2.4e-3}})
+    assert MatchingParams.from_config(stereo).max_conflict_area_m2 == 0.0
+    assert MatchingParams.from_config(Config()).max_conflict_area_m2 == 1.0
+
+
 def test_a_pose_may_win_with_the_rest_of_its_submap_unknown_to_the_map_but_not_in_conflict():
     from reloc.matching.scoring import explains_enough
 
