@@ -780,8 +780,8 @@ class Relocalizer:
         rival. The pose must verify against the map (its planes matched, none in known free space), win the
         decision alone (explaining enough of the submap, at the sharper offsets of the decision over refined poses),
         and pass the winner's last steps: refined by least squares over its matched planes, held to the final
-        tolerances, no large plane in conflict with the map, with enough support along its weakest direction. This says whether the submap pins that pose
-        down, not whether another place looks the same.
+        tolerances, with no large plane in conflict with the map and enough support along its weakest direction. This
+        says whether the submap pins that pose down, not whether another place looks the same.
 
         Returns a :class:`RelocResult`: relocalized with the refined pose, or rejected with the reason.
         """
