@@ -1032,6 +1032,38 @@ def test_the_refinement_falls_back_to_a_wider_angle_only_when_the_pairs_within_i
     assert _refined_with_faces_turned(planes, T, sub, kinect, 5.0) is None
 
 
+def test_a_pose_that_matches_many_planes_needs_to_explain_less_of_its_submap():
+    # An office view of 15 planes whose floor came out 15 cm off the map's floor (a noisy camera's far floor; the
+    # stereo parameters, whose conflict test is off): at the true pose 14 planes match and explain 0.82 of the
+    # submap. A pose of 8 matched planes or more needs to explain 0.75, not 0.85: the true pose stands, and not with
+    # the exception off, nor when it asks for more planes than the 14 matched.
+    import dataclasses
+    from dataclasses import replace
+
+    from reloc.config import Config
+
+    rects = furnished_room("office")
+    T = look_at((0.5, 0.5, 1.6), (5.0, 4.0, 0.6))
+    floor = rects[0]
+    assert floor.normal == (0, 0, 1)
+    seen = [dataclasses.replace(floor, center=(floor.center[0], floor.center[1], 0.15))] + rects[1:]
+    sub = view_planes(seen, T, hfov_deg=90, vfov_deg=70)
+    assert len(sub) == 15
+    world = scene_planes(rects)
+    stereo = MatchingParams.from_config(
+        Config.model_validate({"extraction": {"noise_model": "stereo", "noise_coeff": 2.4e-3}}))
+    assert (stereo.well_matched_planes, stereo.well_matched_explained_fraction) == (8, 0.75)
+    res = Relocalizer(world, stereo).confirm(sub, T)
+    assert res.relocalized, res.reason
+    t_err, r_err = pose_error(res.T_map_cam, T)
+    assert t_err < 0.01 and r_err < 0.1, (t_err, r_err)
+    res = Relocalizer(world, replace(stereo, well_matched_planes=0)).confirm(sub, T)
+    assert not res.relocalized and "best 14 planes, 0.82 of the submap" in res.reason, res.reason
+    assert not Relocalizer(world, replace(stereo, well_matched_planes=15)).confirm(sub, T).relocalized
+    with pytest.raises(ValueError, match="well_matched_explained_fraction"):
+        MatchingParams(well_matched_explained_fraction=1.5)
+
+
 def test_a_noisy_sensor_matches_planes_with_fewer_samples_on_the_map_plane():
     # Far planes of a noisy (stereo) sensor come out tilted by more than the projection inlier distance across
     # their extent. The view's largest plane with 7 of its 12 verification samples moved 12 cm off it (5 of 12

@@ -51,6 +51,8 @@ class MatchingParams:
     hidden_against_support: bool = True
     max_conflict_area_m2: float = 1.0
     min_explained_fraction: float = 0.85
+    well_matched_planes: int = 8
+    well_matched_explained_fraction: float = 0.75
     min_explained_known_fraction: float = 0.7
     min_competitor_fraction: float = 0.6
     min_counted_area_m2: float = 0.3
@@ -132,7 +134,7 @@ class MatchingParams:
                 f"got {self.min_explained_known_fraction}"
             )
         for name in ("max_free_fraction", "free_far_min_fraction", "occlusion_min_fraction", "min_projection_ratio",
-                     "noisy_min_projection_ratio"):
+                     "noisy_min_projection_ratio", "well_matched_explained_fraction"):
             if getattr(self, name) > 1:
                 problems.append(f"{name}: expected a fraction in [0, 1], got {getattr(self, name)}")
         if self.extent_trim_fraction >= 0.5:
@@ -189,6 +191,8 @@ class MatchingParams:
             hidden_against_support=e.hidden_against_support,
             max_conflict_area_m2=e.max_conflict_area_m2,
             min_explained_fraction=e.min_explained_fraction,
+            well_matched_planes=e.well_matched_planes,
+            well_matched_explained_fraction=e.well_matched_explained_fraction,
             min_explained_known_fraction=e.min_explained_known_fraction,
             min_competitor_fraction=e.min_competitor_fraction,
             min_counted_area_m2=e.min_counted_area_m2,

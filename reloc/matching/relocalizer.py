@@ -771,7 +771,8 @@ class Relocalizer:
 
     def _holds(self, v: Verification, min_matched: int) -> bool:
         """Whether the single pose verified in ``v`` passes, explains enough and matches ``min_matched`` planes."""
-        return bool(v.passed[0] and explains_enough(v.explained[0], v.unknown[0], v.state[0], self.params)
+        return bool(v.passed[0] and explains_enough(v.explained[0], v.unknown[0], v.state[0], self.params,
+                                                    v.n_matched[0])
                     and v.n_matched[0] >= min_matched)
 
     def confirm(self, submap: PlaneSet, T_map_cam) -> RelocResult:
