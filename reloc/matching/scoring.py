@@ -62,9 +62,8 @@ def explains_enough(explained, unknown, state, params: MatchingParams, n_matched
     min_explained_fraction``): a place the mapping run saw in part is not held against the true pose, while its
     rivals get the same credit (optimistic rivals) and the density margin still decides. With ``n_matched`` (the
     matched planes, shape of ``explained``) and ``well_matched_planes`` > 0, a pose matching that many planes or more
-    also explains enough at ``well_matched_explained_fraction``: a noisy camera's far planes come out tilted off
-    their map planes and stay unexplained at the true pose, and the false positives that fraction let in for every
-    pose all matched the minimum of 5 planes.
+    also explains enough at ``well_matched_explained_fraction`` (for noisy sensors, see
+    :func:`reloc.matching.params.scaled_to_sensor`).
     """
     explained = np.asarray(explained)
     ok = explained >= params.min_explained_fraction
