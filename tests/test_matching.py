@@ -1064,6 +1064,9 @@ def test_a_noisy_sensors_pose_that_matches_many_planes_needs_to_explain_less_of_
     res = Relocalizer(world, replace(stereo, well_matched_planes=0)).confirm(sub, T)
     assert not res.relocalized and "best 14 planes, 0.82 of the submap" in res.reason, res.reason
     assert not Relocalizer(world, replace(stereo, well_matched_planes=15)).confirm(sub, T).relocalized
+    # locate's rejection names the exception: here the view's 15 planes are too few for it once 16 are asked.
+    res = Relocalizer(world, replace(stereo, well_matched_planes=16)).locate(sub)
+    assert "or 0.75 with 16 planes" in res.reason, res.reason
     with pytest.raises(ValueError, match="noisy_well_matched_explained_fraction"):
         MatchingParams(noisy_well_matched_explained_fraction=1.5)
 

@@ -218,6 +218,8 @@ def decide(
             False,
             f"no pose explains enough: best {int(n_matched[a])} planes, {explained[a]:.2f} of the submap (needs "
             f"{need} and {params.min_explained_fraction}"
+            + (f", or {params.well_matched_explained_fraction} with {params.well_matched_planes} planes"
+               if params.well_matched_planes > 0 else "")
             + (f", or {params.min_explained_known_fraction} with the rest unknown to the map)"
                if params.min_explained_known_fraction > 0 else ")"),
             -1, 0.0, 0.0, n_modes,
