@@ -387,7 +387,7 @@ class EvaluationConfig(_Section):
         description="well_matched_planes for a sensor whose depth noise at 3 m is above noisy_sensor_sigma_m: its far "
         "planes come out tilted off their map planes and stay unexplained at the true pose (four stereo suites: 47 "
         "true poses matching 8-19 planes explained 0.75-0.85), while the false positives that 0.75 or 0.8 for every "
-        "pose let in all matched 5 planes. 0 turns it off. Not for a less noisy sensor: with ToF noise a meeting-room "
+        "pose let in matched 5 or 6 planes. 0 turns it off. Not for a less noisy sensor: with ToF noise a meeting-room "
         "view was answered in the next room with 14 planes matched and 0.78 explained.",
     )
     noisy_well_matched_explained_fraction: float = Field(
