@@ -24,7 +24,7 @@ NOISES = ("none", "stereo", "kinect", "tof")
 @click.option("--height", type=click.IntRange(min=8), default=None, help="...and this height.")
 @click.option("--people", type=click.IntRange(min=0), default=0, show_default=True, help="Walking people (clutter).")
 @click.option("--rate-hz", type=click.FloatRange(min=0, min_open=True), default=30.0, show_default=True)
-@click.option("--out", "out_dir", type=click.Path(file_okay=False), required=True, help="Output directory.")
+@click.option("-o", "--out", "out_dir", type=click.Path(file_okay=False), required=True, help="Output directory.")
 @click.option("--overwrite", is_flag=True, help="Replace a sequence already in --out.")
 def sim(scene, trajectory, n_frames, seed, scene_seed, noise, camera, width, height, people, rate_hz, out_dir,
         overwrite) -> None:

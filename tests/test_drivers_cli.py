@@ -36,7 +36,7 @@ def test_record_the_simulator_with_options(tmp_path, capsys):
 
 def test_a_recording_of_a_simulated_sequence_keeps_its_ground_truth_files(tmp_path):
     src, rec = tmp_path / "sim", tmp_path / "rec"
-    assert main(["sim", "office", "--frames", "3", "--width", "80", "--height", "60", "--out", str(src)]) == 0
+    assert main(["sim", "office", "--frames", "3", "--width", "80", "--height", "60", "-o", str(src)]) == 0
     assert main(["record", "--camera", f"replay:{src}", "--out", str(rec), "--frames", "2"]) == 0
     for name in ("planes.json", "sim.json"):
         assert (rec / name).read_text() == (src / name).read_text()

@@ -57,7 +57,7 @@ def test_locate_writes_one_line_per_query(office_sequence, tmp_path):
     assert main(["map", "build", str(office_sequence), "-o", str(map_path), "--quiet"]) == 0
     results = tmp_path / "results.jsonl"
     assert main(["locate", "--map", str(map_path), str(office_sequence), "--frames", "120:240", "--every", "30",
-                 "--window", "20", "--stride", "3", "--out", str(results), "--quiet"]) == 0
+                 "--window", "20", "--stride", "3", "-o", str(results), "--quiet"]) == 0
     lines = [json.loads(x) for x in results.read_text().splitlines()]
     assert [x["frame"] for x in lines] == [120, 150, 180, 210]
     from drivers.readers import open_sequence

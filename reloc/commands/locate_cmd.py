@@ -10,7 +10,7 @@ from reloc.commands.map_cmd import SOURCES, config_sections, parse_frames, seque
 @click.command("locate")
 @click.argument("seq", type=click.Path(exists=True))
 @click.option("--map", "map_path", required=True, type=click.Path(exists=True, dir_okay=False), help="Map file.")
-@click.option("--out", "out_path", required=True, type=click.Path(dir_okay=False), help="JSON Lines output.")
+@click.option("-o", "--out", "out_path", required=True, type=click.Path(dir_okay=False), help="JSON Lines output.")
 @click.option("--frames", "frames_spec", default=None, metavar="A:B", help="Query frames (a:b or one index).")
 @click.option("--window", type=click.IntRange(min=1), default=None,
               help="Frames fused into each submap (config mapping.submap_window_frames by default).")
