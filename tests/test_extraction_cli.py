@@ -21,6 +21,8 @@ def test_parse_frames():
         parse_frames("7", 5)
     with pytest.raises(Exception, match="a:b"):
         parse_frames("x", 5)
+    with pytest.raises(Exception, match="selects none"):
+        parse_frames("3:1", 5)  # an empty run is an error, as for reloc map build and locate
 
 
 def test_planes_command_on_a_sequence_and_a_cloud(tmp_path):
@@ -45,7 +47,7 @@ def test_planes_command_on_a_sequence_and_a_cloud(tmp_path):
     rng = np.random.default_rng(0)
     wall = np.column_stack([rng.uniform(-1, 1, 20000), rng.uniform(-1, 1, 20000), 3 + 0.002 * rng.normal(size=20000)])
     np.save(tmp_path / "wall.npy", wall.astype(np.float32))
-    res = CliRunner().invoke(cli, ["planes", str(tmp_path / "wall.npy"), "--out", str(tmp_path / "wall.jsonl")])
+    res = CliRunner().invoke(cli, ["planes", str(tmp_path / "wall.npy"), "-o", str(tmp_path / "wall.jsonl")])
     assert res.exit_code == 0, res.output
     (rec,) = [json.loads(x) for x in (tmp_path / "wall.jsonl").read_text().splitlines()]
     assert len(rec["planes"]) == 1

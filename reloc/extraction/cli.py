@@ -4,24 +4,9 @@ from __future__ import annotations
 
 import click
 
+from reloc.commands.map_cmd import parse_frames
+
 POINT_CLOUD_SUFFIXES = (".ply", ".npy")
-
-
-def parse_frames(spec: str | None, n: int) -> range:
-    """Frame indices of ``a:b`` (Python slice semantics, either end optional, negative from the end) or ``i``."""
-    if spec is None:
-        return range(n)
-    text = spec.strip()
-    try:
-        if ":" in text:
-            a, _, b = text.partition(":")
-            return range(n)[slice(int(a) if a.strip() else None, int(b) if b.strip() else None)]
-        i = int(text)
-    except ValueError:
-        raise click.BadParameter(f"expected a:b or an index, got {spec!r}", param_hint="--frames") from None
-    if not -n <= i < n:
-        raise click.BadParameter(f"index {i} outside the {n} frames", param_hint="--frames")
-    return range(n)[i : i + 1 or None]
 
 
 def plane_records(planes) -> list[dict]:
@@ -44,7 +29,7 @@ def plane_records(planes) -> list[dict]:
 @click.option("--frames", "frames_spec", default=None, metavar="A:B", help="Frames to process (a:b or one index).")
 @click.option("--config", "config_path", type=click.Path(exists=True, dir_okay=False), default=None,
               help="YAML config (defaults otherwise).")
-@click.option("--out", "out_path", required=True, type=click.Path(dir_okay=False),
+@click.option("-o", "--out", "out_path", required=True, type=click.Path(dir_okay=False),
               help="JSON Lines output, one line per frame; the resolved config is written beside it.")
 @click.option("--quiet", is_flag=True, help="No progress bar.")
 def planes(input_path, frames_spec, config_path, out_path, quiet):
