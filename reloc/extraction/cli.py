@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import click
 
-from reloc.commands.map_cmd import parse_frames
+from reloc.commands.map_cmd import parse_frames, sequence_config
 
 POINT_CLOUD_SUFFIXES = (".ply", ".npy")
 
@@ -75,7 +75,6 @@ def planes(input_path, frames_spec, config_path, out_path, quiet):
             n_ok = 1
         else:
             from drivers.readers import open_sequence
-            from reloc.commands.map_cmd import sequence_config
 
             seq = open_sequence(src)
             own = sequence_config(cfg, str(src), quiet)
