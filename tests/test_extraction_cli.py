@@ -9,18 +9,6 @@ import pytest
 from click.testing import CliRunner
 
 from reloc.cli import cli
-from reloc.extraction.cli import parse_frames
-
-
-def test_parse_frames():
-    assert list(parse_frames("1:3", 5)) == [1, 2]
-    assert list(parse_frames(":2", 5)) == [0, 1]
-    assert list(parse_frames("-1", 5)) == [4]
-    assert list(parse_frames(None, 3)) == [0, 1, 2]
-    with pytest.raises(Exception, match="outside"):
-        parse_frames("7", 5)
-    with pytest.raises(Exception, match="a:b"):
-        parse_frames("x", 5)
 
 
 def test_planes_command_on_a_sequence_and_a_cloud(tmp_path):
