@@ -198,12 +198,13 @@ class MergingConfig(_Section):
         description="Fragments: centroids within the larger plane's radius times this factor (2: the two halves of "
         "a wall cut by a door are ~1.6 radii apart).",
     )
-    layer_min_shared: float = Field(
-        0.0, ge=0, le=1,
+    layer_min_shared: float | None = Field(
+        None, ge=0, le=1,
         description="Layers: two planes within the fragments' angle, within the planarity thickness of each other and "
         "sharing at least this fraction of the smaller one's 2x2 pixel blocks are one surface (stereo's disparity "
-        "steps cut a far wall into parallel layers seen through the same rays) and become one plane. 0 = never (the "
-        "default; 0.5 for stereo cameras: see docs/BENCHMARKS.md).",
+        "steps cut a far wall into parallel layers seen through the same rays) and become one plane. 0 = never; "
+        "null (the default) = by the sensor: 0.5 with a stereo camera's noise law, never with any other (see "
+        "docs/BENCHMARKS.md).",
     )
 
 

@@ -163,8 +163,9 @@ def test_a_far_stereo_wall_is_not_dropped_as_a_bevel():
 def test_layers_of_a_far_stereo_wall_become_one_plane(noise_seed):
     """A wall 5.6 m away facing the camera under stereo noise (apartment, robot trajectory 3, frame 320): the
     disparity steps (1/8 px, 12-13 cm of depth there) put its points on a few depth levels, and without the layer
-    merge it comes out as two parallel planes through the same pixels, one 13-15 cm off (the default). With it
-    (``layer_min_shared`` 0.5) it is one plane over all its pixels, within 1 deg and 3 cm (the steps' mean)."""
+    merge (``layer_min_shared`` 0) it comes out as two parallel planes through the same pixels, one 13-15 cm off.
+    With it (0.5, the default for a stereo camera's noise law) it is one plane over all its pixels, within 1 deg and
+    3 cm (the steps' mean)."""
     sim = pytest.importorskip("sim")
     from sim.ground_truth import planes_in_camera
     from sim.scenes import make_scene
@@ -189,11 +190,25 @@ def test_layers_of_a_far_stereo_wall_become_one_plane(noise_seed):
         share = [int(((ps.labels == i) & wall).sum()) / wall.sum() for i in range(len(ps))]
         return [(s, *plane_errors(np.r_[ps.normals[i], ps.offsets[i]], gt)) for i, s in enumerate(share) if s >= 0.2]
 
-    assert params.layer_min_shared == 0.0  # the default: no layer merge
-    layers = covering(params)
+    assert params.noise_model == "stereo" and params.layer_min_shared is None and params.layer_share == 0.5
+    layers = covering(params.with_(layer_min_shared=0.0))
     assert len(layers) == 2 and max(off for _, _, off in layers) > 0.1, layers
-    (share, ang, off), = covering(params.with_(layer_min_shared=0.5))
+    (share, ang, off), = covering(params)
     assert share > 0.95 and ang < 1.0 and off < 0.03, (share, ang, off)
+    assert covering(params.with_(layer_min_shared=0.5)) == [(share, ang, off)]
+
+
+@pytest.mark.parametrize("noise_model, expected", [("stereo", 0.5), ("kinect", 0.0), ("tof", 0.0), ("constant", 0.0)])
+def test_layers_are_merged_by_default_only_for_a_stereo_cameras_noise_law(noise_model, expected):
+    assert ExtractionParams(noise_model=noise_model).layer_share == expected
+    assert ExtractionParams(noise_model=noise_model, layer_min_shared=0.25).layer_share == 0.25
+    assert ExtractionParams(noise_model=noise_model, layer_min_shared=0).layer_share == 0.0
+
+
+@pytest.mark.parametrize("bad", [-0.1, 1.5, True, "half", float("nan")])
+def test_a_bad_layer_share_is_named(bad):
+    with pytest.raises(ValueError, match="layer_min_shared"):
+        ExtractionParams(layer_min_shared=bad)
 
 
 def test_noise_free_frame_fits_within_a_millimetre():

@@ -17,6 +17,9 @@ __all__ = ["ExtractionParams", "NOISE_MODELS", "noise_sigma", "noise_law_code"]
 NOISE_MODELS = {"constant": 0, "tof": 1, "kinect": 2, "stereo": 2}
 NOISE_DIRECTIONS = ("ray", "normal")
 GRAVITY_FALLBACKS = ("camera_y", "mounting", "none")
+# The layer merge's share for a stereo camera when none is set (docs/BENCHMARKS.md, "Stereo's layers merged by
+# default"): layers are a stereo camera's, so every other sensor's planes are not merged that way.
+STEREO_LAYER_MIN_SHARED = 0.5
 
 
 def noise_law_code(noise_model: str) -> int:
@@ -72,8 +75,9 @@ class ExtractionParams:
     ``undergrown_max_angle_rad``, the smaller one's centroid within ``max_thickness_sigmas`` depth sigmas of the
     larger plane, and which share at least ``layer_min_shared`` of the smaller one's 2x2 pixel blocks are one
     surface seen through the same rays (stereo's disparity steps cut a far wall into such layers): they become one
-    plane, refit from both (0 = never, the default; 0.5 measured for stereo, see docs/BENCHMARKS.md, "Stereo's far
-    walls in layers").
+    plane, refit from both (0 = never; None, the default, is 0.5 with a stereo camera's noise law and 0 with every
+    other: :attr:`layer_share`; see docs/BENCHMARKS.md, "Stereo's far walls in layers" and "Stereo's layers merged by
+    default").
     Plane set: ``area_patch_m`` (l of the area count), ``sample_spacing_m``, ``inlier_sigmas`` (points of a
     plane's voxels farther than this many sigmas are not labelled as the plane), ``refine_boundary`` (points of
     neighbouring voxels join it when inside that band), ``refine_iterations`` (robust passes over the points near
@@ -125,7 +129,7 @@ class ExtractionParams:
     undergrown_max_depth_angle_rad: float = math.radians(5.0)
     undergrown_max_offset_m: float = 0.05
     undergrown_radius_scale: float = 2.0
-    layer_min_shared: float = 0.0
+    layer_min_shared: float | None = None
     flying_pixel_sigmas: float = 0.0
     area_patch_m: float = 0.1
     sample_spacing_m: float = 0.1
@@ -163,9 +167,10 @@ class ExtractionParams:
         if self.corner_min_angle_rad > math.pi / 2:
             raise ValueError(f"ExtractionParams.corner_min_angle_rad: expected at most pi/2, got "
                              f"{self.corner_min_angle_rad!r}")
-        if not (isinstance(self.layer_min_shared, (int, float)) and 0 <= self.layer_min_shared <= 1):
-            raise ValueError(f"ExtractionParams.layer_min_shared: expected a number in [0, 1], got "
-                             f"{self.layer_min_shared!r}")
+        ls = self.layer_min_shared
+        if ls is not None and (isinstance(ls, bool) or not isinstance(ls, (int, float)) or not 0 <= ls <= 1):
+            raise ValueError(f"ExtractionParams.layer_min_shared: expected None (by the sensor) or a number in [0, 1], "
+                             f"got {ls!r}")
         bw = self.bevel_max_width_voxels
         if bw is not None and (isinstance(bw, bool) or not isinstance(bw, (int, float)) or not math.isfinite(bw)
                                or bw <= 0):
@@ -211,6 +216,15 @@ class ExtractionParams:
         """``bevel_max_width_voxels`` in metres (inf when None: no limit)."""
         bw = self.bevel_max_width_voxels
         return math.inf if bw is None else bw * self.voxel_size_m
+
+    @property
+    def layer_share(self) -> float:
+        """The layer merge's ``layer_min_shared`` in effect: the set value, or when it is None (the default)
+        :data:`STEREO_LAYER_MIN_SHARED` for a stereo camera's noise law (whose disparity steps make the layers) and 0
+        (no merge) for every other sensor."""
+        if self.layer_min_shared is not None:
+            return float(self.layer_min_shared)
+        return STEREO_LAYER_MIN_SHARED if self.noise_model == "stereo" else 0.0
 
     @property
     def noise_power(self) -> int:

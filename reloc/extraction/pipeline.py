@@ -179,7 +179,7 @@ class PlaneExtractor:
             inlier_sigmas=p.inlier_sigmas, refine_boundary=p.refine_boundary, area_patch_m=p.area_patch_m,
             sample_spacing_m=p.sample_spacing_m, min_plane_points=p.min_plane_points,
             min_plane_area_m2=p.min_plane_area_m2, noise_direction=p.noise_direction, gravity=gravity, frame="cam", workspace=ws,
-            gravity_tolerance_rad=gravity_tolerance_rad, layer_min_shared=p.layer_min_shared if p.merge else 0.0,
+            gravity_tolerance_rad=gravity_tolerance_rad, layer_min_shared=p.layer_share if p.merge else 0.0,
             layer_max_angle_rad=p.undergrown_max_angle_rad, layer_offset_sigmas=p.max_thickness_sigmas, **noise,
         )
         t_end = time.perf_counter()
