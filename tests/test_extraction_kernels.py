@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import itertools
+
 import numpy as np
 import pytest
 
@@ -1044,15 +1046,16 @@ def test_layer_candidates_and_blocks_match_numpy():
                 want.append((i, j))
     assert got == len(want) > 0 and [tuple(r) for r in out[:got]] == want
 
-    m, width, height, block = 400, 20, 12, 2
-    point_plane = rng.integers(-1, 5, m).astype(np.int32)
+    m, block = 400, 2
     table = np.array([2, -1, 0, 3, 1], np.int32)
-    pix = rng.permutation(width * height).astype(np.int32)
-    src = rng.integers(0, width * height, m).astype(np.int32)
     bit_of = np.array([0, -1, 1, 2], np.int64)
-    n_bw = width // block
-    for src_is_pixel in (True, False):
-        masks = np.zeros(n_bw * (height // block), np.uint64)
+    # Odd sizes too: the kernel takes a pixel's row by a multiplication, the test by an integer division.
+    for (width, height), src_is_pixel in itertools.product(((20, 12), (21, 13), (640, 5)), (True, False)):
+        point_plane = rng.integers(-1, 5, m).astype(np.int32)
+        pix = rng.permutation(width * height).astype(np.int32)
+        src = rng.integers(0, width * height, m).astype(np.int32)
+        n_bw = -(-width // block)
+        masks = np.zeros(n_bw * -(-height // block), np.uint64)
         kf.layer_blocks(point_plane, table, m, src, src_is_pixel, pix, width, block, n_bw, bit_of, masks)
         want = np.zeros_like(masks)
         for j in range(m):
