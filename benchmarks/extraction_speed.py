@@ -3,8 +3,9 @@
     .venv/bin/python benchmarks/extraction_speed.py [--frames 240] [--threads 1] [--quick]
 
 Frames: robot trajectories through four scenes (living_room, office, apartment, corridor), rendered before any
-timing, at 640x480 (Kinect preset, Kinect noise) and 640x400 (OAK-D preset, stereo noise), full resolution. Every
-configuration is warmed up (JIT and buffers) before it is timed; times come from ``ExtractionResult.timings_ms``
+timing, at 640x480 (Kinect preset, Kinect noise) and 640x400 (OAK-D preset, stereo noise), full resolution, each
+extracted with its sensor's noise law as `reloc run` would (before 2026-11-29 the OAK-D frames had the Kinect law).
+Every configuration is warmed up (JIT and buffers) before it is timed; times come from ``ExtractionResult.timings_ms``
 (``time.perf_counter`` around each stage), the wall time of the whole call and the thread's CPU time for it
 (``time.thread_time``: on a shared machine the wall time also counts waiting for other processes; the load average
 at the start and end is recorded). One numba thread by default
@@ -13,7 +14,8 @@ at the start and end is recorded). One numba thread by default
 Configurations run side by side on the same frames: the defaults; without the point refinement (planes straight
 from the merged voxel moments); a paper-like setting (no robust weights, no noise weights, no refinement: PCA
 voxels, Eq. 2 weights, merging); without merging (VR-NM); and, for scale, every second pixel in both directions
-(not full resolution, so not the figure the goal is about).
+(not full resolution, so not the figure the goal is about); and without the layer merge, which is on by default
+for the stereo camera alone (``layer_min_shared`` 0; the same as the defaults for the Kinect frames).
 
 ``parallel=True`` on this machine's cores: ``--parallel-probe`` (run by the main run in a subprocess with two
 numba threads) times the per-voxel moments and a per-point plane-distance pass, the two loop shapes of the
@@ -35,6 +37,7 @@ VARIANTS = {
     "paper-like": {"refine_iterations": 0, "irls_iterations": 0, "noise_weights": False},
     "no-merge (VR-NM)": {"merge": False},
     "pixel stride 2": {"pixel_stride": 2},
+    "no layers": {"layer_min_shared": 0.0},
 }
 DATASETS = (("kinect", "kinect"), ("oak-d", "stereo"))
 SCENES = ("living_room", "office", "apartment", "corridor")
@@ -72,6 +75,8 @@ def main() -> None:
     import sim
     from reloc._numba import warm_up
     from reloc.extraction import STAGES, ExtractionParams, PlaneExtractor
+    from sim.cameras import resolve_intrinsics
+    from sim.noise import make_noise
 
     n_frames = 40 if args.quick else args.frames
     info = warm_up(("reloc.extraction",))
@@ -91,8 +96,11 @@ def main() -> None:
     rows, results = [], []
     for (camera, noise), frames in datasets.items():
         h, w = frames[0].depth_m.shape
+        law = make_noise(noise).extraction_law(resolve_intrinsics(camera, w, h).fx)
         for name in variants:
             params = ExtractionParams(**VARIANTS[name])
+            if law is not None:  # the sensor's own law, as reloc run takes it from the camera
+                params = params.with_(noise_model=law[0], noise_coeff=law[1])
             ex = PlaneExtractor(params)
             for f in frames[:5]:  # warm-up: buffers sized, caches hot
                 ex.extract(f)
@@ -113,6 +121,7 @@ def main() -> None:
             med = {k: float(np.median(v)) for k, v in stage.items()}
             rec = {
                 "camera": camera, "noise": noise, "width": w, "height": h, "variant": name, "params": VARIANTS[name],
+                "noise_law": None if law is None else [law[0], float(law[1])],
                 "frames": len(frames), "threads": args.threads,
                 "wall_ms": {"median": float(np.median(wall)), "p95": float(np.percentile(wall, 95)),
                             "p99": float(np.percentile(wall, 99)), "mean": float(wall.mean())},

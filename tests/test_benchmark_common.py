@@ -42,7 +42,8 @@ def test_the_benchmark_scripts_refuse_a_bad_name_before_measuring():
     import subprocess
 
     root = Path(__file__).resolve().parents[1]
-    for script in ("reloc_accuracy.py", "extraction_accuracy.py", "extraction_speed.py", "sim_speed.py"):
+    for script in ("reloc_accuracy.py", "extraction_accuracy.py", "extraction_speed.py", "sim_speed.py",
+                   "map_accuracy.py"):
         done = subprocess.run([sys.executable, str(root / "benchmarks" / script), "--name", "a/b"],
                               capture_output=True, text=True, timeout=120)
         assert done.returncode == 2 and "--name: expected a plain file stem" in done.stderr, (script, done.stderr)
@@ -69,6 +70,29 @@ def test_the_latency_benchmarks_two_floor_map_holds_both_floors():
     assert np.allclose(two.centroids[len(one):] - other.centroids, [200.0, 0.0, 0.0], atol=1e-9)
     assert two.gravity_tolerance_rad == one.gravity_tolerance_rad and np.array_equal(two.gravity, one.gravity)
     assert np.allclose(two.samples_of(len(one)) - np.float32([200.0, 0.0, 0.0]), other.samples_of(0), atol=1e-4)
+
+
+def test_the_map_benchmark_scores_each_plane_against_its_true_surface():
+    """map_accuracy.py's measure on a made-up map: a floor on its surface, a second floor 10 cm above it over the same
+    place (a duplicate, 6 cm or more off), a wall 2 cm off its surface and a tilted plane no true plane is near."""
+    from types import SimpleNamespace
+
+    import numpy as np
+    from map_accuracy import map_errors
+
+    g = np.stack(np.meshgrid(np.arange(0.0, 2.0, 0.1), np.arange(0.0, 2.0, 0.1)), -1).reshape(-1, 2)
+    floor = np.c_[g, np.zeros(len(g))]
+    layer = floor[: len(floor) // 2] + [0.0, 0.0, 0.1]
+    wall = np.c_[np.full(len(g), 2.02), g]
+    tilted = np.c_[g, g[:, 0]]
+    samples = [floor, layer, wall, tilted]
+    normals = np.array([[0, 0, 1.0], [0, 0, 1.0], [-1.0, 0, 0], [-np.sqrt(0.5), 0, np.sqrt(0.5)]])
+    planes = SimpleNamespace(normals=normals, areas=np.array([4.0, 2.0, 4.0, 1.0]), samples_of=lambda i: samples[i])
+    scene = SimpleNamespace(normals=np.array([[0, 0, 1.0], [-1.0, 0, 0]]), offsets=np.array([0.0, 2.0]))
+    r = map_errors(SimpleNamespace(planes=planes), scene)
+    assert r["planes"] == 4 and r["duplicates"] == 1
+    assert r["area_by_offset_m2"] == [4.0, 4.0, 0.0, 2.0] and r["unmatched_area_m2"] == 1.0
+    assert r["mean_offset_m"] == pytest.approx((4.0 * 0.02 + 2.0 * 0.1) / 10.0)
 
 
 def test_a_benchmark_measures_the_code_of_its_own_checkout(tmp_path):
