@@ -135,3 +135,20 @@ def test_cli_config_commands(tmp_path, capsys):
         cli_main(["config", "check", str(bad)])
     assert info.value.code == 1
     assert "extraction.voxel_size_m" in capsys.readouterr().err
+
+
+def test_a_cameras_stereo_law_is_taken_with_its_layer_merge_and_the_note_says_so():
+    from reloc.config import with_noise_law
+    from reloc.extraction import ExtractionParams
+
+    cfg, note = with_noise_law(Config(), ("stereo", 2.4e-3), "the camera")
+    params = ExtractionParams.from_config(cfg)
+    assert (params.noise_model, params.noise_coeff, params.layer_share) == ("stereo", 2.4e-3, 0.5)
+    assert note.startswith("depth noise: stereo, sigma = 0.0024 z^2 m, from the camera")
+    assert "merging.layer_min_shared: 0 stops it" in note
+    # A config that sets the share keeps it, and the note does not claim the merge.
+    own = config_from_dict({"merging": {"layer_min_shared": 0.0}})
+    cfg, note = with_noise_law(own, ("stereo", 2.4e-3), "the camera")
+    assert ExtractionParams.from_config(cfg).layer_share == 0.0 and "layer" not in note
+    cfg, note = with_noise_law(Config(), ("tof", 2e-3), "the recording")
+    assert ExtractionParams.from_config(cfg).layer_share == 0.0 and "layer" not in note

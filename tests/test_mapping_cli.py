@@ -191,7 +191,9 @@ def test_a_sequences_stored_noise_law_is_used_unless_the_config_names_one(tmp_pa
     assert stored["model"] == "stereo" and abs(stored["coeff"] - 0.08 / (fx * 0.075)) < 1e-12
     capsys.readouterr()
     assert main(["map", "build", str(seq), "-o", str(tmp_path / "m.npz")]) == 0
-    assert "depth noise: stereo" in capsys.readouterr().err
+    err = capsys.readouterr().err
+    # The stereo law also brings the stereo camera's layer merge (ExtractionParams.layer_share), and says so.
+    assert "depth noise: stereo" in err and "layers of its disparity steps are merged" in err
     ex = load_map(tmp_path / "m.npz").meta["config"]["extraction"]
     assert (ex["noise_model"], ex["noise_coeff"]) == ("stereo", stored["coeff"])
     assert main(["map", "info", str(tmp_path / "m.npz")]) == 0
