@@ -33,6 +33,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 # _common first: it puts this checkout's root on sys.path before anything of the project is imported.
 from _common import print_table, results_name, write_results  # noqa: E402
 
+from reloc_accuracy import sensor_spec  # noqa: E402
+
 from reloc._numba import warm_up  # noqa: E402
 from reloc.evaluation.suite import (  # noqa: E402
     SCENES, EvalSpec, build_scene_map, extraction_for_sensor, make_plane_source,
@@ -93,11 +95,9 @@ def map_errors(plane_map, scene) -> dict:
 
 
 def _spec(noise: str, scenes: tuple[str, ...], map_frames: int, map_seed: int) -> EvalSpec:
-    spec = EvalSpec(scenes=scenes, noise=noise, width=320, height=240, plane_source="extraction", map_seed=map_seed,
+    spec = EvalSpec(scenes=scenes, width=320, height=240, plane_source="extraction", map_seed=map_seed,
                     map_trajectories=(("robot", map_frames), ("handheld", map_frames)))
-    if noise == "stereo":
-        spec = replace(spec, camera="oak-d", width=640, height=400)
-    return spec
+    return sensor_spec(spec, noise)  # reloc_accuracy.py's cameras and sizes
 
 
 def main() -> None:

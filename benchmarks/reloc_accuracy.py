@@ -54,6 +54,15 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _common import git_info, parse_overrides, print_table, results_name, write_results  # noqa: E402
 
 
+def sensor_spec(spec, noise: str):
+    """``spec`` (an EvalSpec) for the noise model ``noise``: the stereo model is the OAK-D class camera's, at its own
+    resolution (its noise grows as z^2 / (f b)); the others keep the spec's camera and size."""
+    spec = replace(spec, noise=noise)
+    if noise == "stereo":
+        spec = replace(spec, camera="oak-d", width=640, height=400)
+    return spec
+
+
 def paper_settings(params):
     """The baseline: the paper's evaluation and decision rules only, on the same index and transforms (none of our
     additions: no free space, explained fraction, direction support, twin probe, decision over refined poses, lower
@@ -194,10 +203,7 @@ def main() -> int:
     here = git_info()
     summary_rows, results = [], {}
     for source, noise in sources:
-        spec = replace(base, plane_source=source, noise=noise)
-        if noise == "stereo":
-            # The stereo model is the OAK-D class camera's, at its own resolution (its noise grows as z^2 / (f b)).
-            spec = replace(spec, camera="oak-d", width=640, height=400)
+        spec = sensor_spec(replace(base, plane_source=source), noise)
         t0 = time.perf_counter()
         origin = None  # where a loaded suite came from (the results name it)
         if args.prepared is not None:

@@ -872,12 +872,12 @@ def with_noise_law(cfg: Config, law: "tuple[str, float] | None", origin: str) ->
     model, coeff = law
     if (model, coeff) == (ex.noise_model, ex.noise_coeff):
         return cfg, None
-    from reloc.extraction.params import noise_law_code
+    from reloc.extraction.params import ExtractionParams, noise_law_code
 
     section = ex.model_copy(update={"noise_model": model, "noise_coeff": float(coeff)})
     text = f"{float(coeff):.3g}" + {0: "", 1: " z", 2: " z^2"}[noise_law_code(model)]
     note = (f"depth noise: {model}, sigma = {text} m, from {origin} (extraction.noise_model / noise_coeff in the "
             "config override it)")
-    if model == "stereo" and cfg.merging.layer_min_shared is None:
+    if cfg.merging.layer_min_shared is None and ExtractionParams(noise_model=model).layer_share > 0:
         note += "; planes that are layers of its disparity steps are merged (merging.layer_min_shared: 0 stops it)"
     return cfg.model_copy(update={"extraction": section}), note

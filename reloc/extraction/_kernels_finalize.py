@@ -1184,7 +1184,8 @@ def layer_blocks(point_plane, table, m, sorted_src, src_is_pixel, pix, width, bl
     ``block x block`` pixel block: ``masks`` (blocks,) uint64, zeroed by the caller, OR-ed here. Point ``j`` is on
     plane ``table[point_plane[j]]`` at pixel ``sorted_src[j]`` (``src_is_pixel``) or ``pix[sorted_src[j]]``.
     The row of pixel ``k`` is ``(k + 0.5) / width`` rounded down, taken with a multiplication: exact, since that
-    quotient is at least ``0.5 / width`` from an integer, and an integer division per point cost 0.5 ms a frame."""
+    quotient is at least ``0.5 / width`` from an integer; with an integer division per point a call took 0.59 ms
+    instead of 0.45 on stereo frames with layer candidates."""
     inv_width = 1.0 / width
     for j in range(m):
         p = point_plane[j]
