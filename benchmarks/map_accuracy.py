@@ -33,11 +33,10 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 # _common first: it puts this checkout's root on sys.path before anything of the project is imported.
 from _common import print_table, results_name, write_results  # noqa: E402
 
-from reloc_accuracy import sensor_spec  # noqa: E402
 
 from reloc._numba import warm_up  # noqa: E402
 from reloc.evaluation.suite import (  # noqa: E402
-    SCENES, EvalSpec, build_scene_map, extraction_for_sensor, make_plane_source,
+    SCENES, EvalSpec, build_scene_map, extraction_for_sensor, make_plane_source, sensor_spec,
 )
 from reloc.extraction import ExtractionParams  # noqa: E402
 from sim.scenes import make_scene  # noqa: E402
@@ -97,7 +96,7 @@ def map_errors(plane_map, scene) -> dict:
 def _spec(noise: str, scenes: tuple[str, ...], map_frames: int, map_seed: int) -> EvalSpec:
     spec = EvalSpec(scenes=scenes, width=320, height=240, plane_source="extraction", map_seed=map_seed,
                     map_trajectories=(("robot", map_frames), ("handheld", map_frames)))
-    return sensor_spec(spec, noise)  # reloc_accuracy.py's cameras and sizes
+    return sensor_spec(spec, noise)  # the cameras and sizes of reloc_accuracy.py and reloc eval
 
 
 def main() -> None:

@@ -54,15 +54,6 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _common import git_info, parse_overrides, print_table, results_name, write_results  # noqa: E402
 
 
-def sensor_spec(spec, noise: str):
-    """``spec`` (an EvalSpec) for the noise model ``noise``: the stereo model is the OAK-D class camera's, at its own
-    resolution (its noise grows as z^2 / (f b)); the others keep the spec's camera and size."""
-    spec = replace(spec, noise=noise)
-    if noise == "stereo":
-        spec = replace(spec, camera="oak-d", width=640, height=400)
-    return spec
-
-
 def paper_settings(params):
     """The baseline: the paper's evaluation and decision rules only, on the same index and transforms (none of our
     additions: no free space, explained fraction, direction support, twin probe, decision over refined poses, lower
@@ -160,7 +151,7 @@ def main() -> int:
     from reloc._numba import warm_up
     from reloc.evaluation.metrics import summarize
     from reloc.evaluation.prepared_io import PreparedSuiteError, built_with, load_prepared, mismatch, save_prepared
-    from reloc.evaluation.suite import SCENES, prepare_suite, run_ablation
+    from reloc.evaluation.suite import SCENES, prepare_suite, run_ablation, suite_spec
     from reloc.extraction import ExtractionParams
     from reloc.mapping import MappingParams
     from reloc.mapping.plane_map import BENT_FRACTION, BENT_OFF_M
@@ -192,18 +183,19 @@ def main() -> int:
     ours = MatchingParams()
     methods = {"ours": ours, "ours, no optimistic rivals": replace(ours, optimistic_rivals=False),
                "paper settings": paper_settings(ours), **variants}
-    base = EvalSpec(scenes=scenes, width=320, height=240, queries_per_kind=args.queries,
-                    negatives_per_scene=args.negatives, window_frames=args.window,
-                    window_max_frames=3 * args.window if args.max_window is None else args.max_window,
-                    query_spacing_frames=max(60, 3 * args.window + 30),
-                    map_trajectories=(("robot", args.map_frames), ("handheld", args.map_frames)),
-                    query_seed=args.query_seed, map_seed=args.map_seed)
+
+    def suite(noise, **kw):
+        """The suite of reloc eval (reloc.evaluation.suite.suite_spec), so that its tables reproduce these."""
+        return suite_spec(noise, scenes=scenes, queries=args.queries, negatives=args.negatives, window=args.window,
+                          max_window=args.max_window, map_frames=args.map_frames, query_seed=args.query_seed,
+                          map_seed=args.map_seed, **kw)
+
     # The overrides, as JSON reads them back, go with a saved suite for the record (every parameter is compared).
     overrides = json.loads(json.dumps({"set": set_overrides, "mapping_set": mapping_overrides}))
     here = git_info()
     summary_rows, results = [], {}
     for source, noise in sources:
-        spec = sensor_spec(replace(base, plane_source=source), noise)
+        spec = suite(noise, plane_source=source)
         t0 = time.perf_counter()
         origin = None  # where a loaded suite came from (the results name it)
         if args.prepared is not None:
@@ -272,7 +264,7 @@ def main() -> int:
                 floatfmt=FLOATFMT)
     ablation = None
     if args.ablation:
-        spec = replace(base, plane_source="extraction", noise="kinect")
+        spec = suite("kinect", plane_source="extraction")
         out = run_ablation(spec, ABLATIONS, ours, mapping, extraction=extraction)
         rows = [_row(v, summarize(v, [o for r in res for o in r.outcomes])) for v, res in out.items()]
         print_table(HEAD, rows, title="Table 3 analogue: ablations (extraction planes, kinect noise)",

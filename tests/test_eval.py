@@ -224,3 +224,38 @@ def test_eval_command_saves_a_prepared_suite_and_evaluates_it_again(tmp_path):
     assert "no query 'nope' in this suite" in run("--prepared", str(suite), "--explain", "nope", code=2).output
     assert "--explain-map goes with --explain" in run("--explain-map", "office", code=2).output
     assert "--json goes without it" in run("--explain", tp["query"], "--json", "x.json", code=2).output
+
+
+def test_eval_command_runs_the_benchmark_suite_with_each_sensor_camera(tmp_path):
+    """``reloc eval`` (without --quick) builds the suite of ``benchmarks/reloc_accuracy.py``, whose figures
+    docs/BENCHMARKS.md records: frames of 320 x 240, and for stereo noise the OAK-D class camera at its own 640 x 400,
+    whose noise law is several times smaller than the same law on a 160 x 120 image. Checked on a tiny suite (one
+    scene, short maps and windows) through the spec and noise law the run reports, and on --quick's spec."""
+    from dataclasses import asdict, replace
+
+    from click.testing import CliRunner
+
+    from reloc.cli import cli
+    from reloc.evaluation.suite import EvalSpec, extraction_for_sensor, sensor_spec, suite_spec
+
+    tiny = ["--scenes", "living_room", "--queries", "1", "--negatives", "0", "--map-frames", "60", "--window", "4",
+            "--max-window", "0"]
+    specs = {}
+    for noise in ("kinect", "stereo"):
+        out = tmp_path / f"{noise}.json"
+        res = CliRunner().invoke(cli, ["eval", "--noise", noise, "--quiet", "--json", str(out), *tiny])
+        assert res.exit_code == 0, res.output
+        specs[noise] = json.loads(out.read_text())["spec"]
+        assert len(json.loads(out.read_text())["outcomes"]["Ours"]) == 2  # one robot-like, one hand-held view
+    assert (specs["kinect"]["camera"], specs["kinect"]["width"], specs["kinect"]["height"]) == ("kinect", 320, 240)
+    assert (specs["stereo"]["camera"], specs["stereo"]["width"], specs["stereo"]["height"]) == ("oak-d", 640, 400)
+    want = asdict(suite_spec("stereo", scenes=("living_room",), queries=1, negatives=0, window=4, max_window=0,
+                             map_frames=60))
+    assert specs["stereo"] == json.loads(json.dumps(want))
+    # The stereo law at the OAK's own size: sigma(3 m) = c * 9 about 2.2 cm, not the 7 cm of a 160 x 120 image.
+    oak = extraction_for_sensor(suite_spec("stereo"))
+    small = extraction_for_sensor(replace(EvalSpec(), noise="stereo", camera="oak-d"))
+    assert oak.noise_coeff * 9 == pytest.approx(0.0218, abs=0.001)
+    assert small.noise_coeff > 3.5 * oak.noise_coeff
+    quick = sensor_spec(quick_spec(), "stereo")
+    assert (quick.camera, quick.width, quick.height, quick.scenes) == ("oak-d", 640, 400, ("living_room", "office"))

@@ -20,7 +20,10 @@ import click
                    "grow; default 3 x --window, with --quick 0).")
 @click.option("--map-frames", type=click.IntRange(min=50), default=3000, show_default=True,
               help="Frames of each mapping trajectory (a robot tour and a hand-held walk).")
-@click.option("--noise", type=click.Choice(["none", "stereo", "kinect", "tof"]), default="kinect", show_default=True)
+@click.option("--noise", type=click.Choice(["none", "stereo", "kinect", "tof"]), default="kinect", show_default=True,
+              help="Depth noise of the simulated camera: stereo is an OAK-D class camera at its 640 x 400, the "
+                   "others a Kinect-like camera at 320 x 240 (160 x 120 with --quick), as in "
+                   "benchmarks/reloc_accuracy.py.")
 @click.option("--query-seed", type=int, default=None,
               help="Seed of the query trajectories and their noise (default: the suite's, 101). Another value is a "
                    "replicate of the suite on views no default was tuned on (docs/BENCHMARKS.md, held-out "
@@ -73,7 +76,7 @@ def eval_cmd(scenes, source, queries, negatives, window, max_window, map_frames,
     from reloc.evaluation.metrics import format_table, summarize
     from reloc.evaluation.prepared_io import PreparedSuiteError, built_with, load_prepared, mismatch
     from reloc.evaluation.prepared_io import save_prepared as save_prepared_suite
-    from reloc.evaluation.suite import SCENES, EvalSpec, prepare_suite, quick_spec, run_ablation
+    from reloc.evaluation.suite import SCENES, prepare_suite, quick_spec, run_ablation, sensor_spec, suite_spec
     from reloc.mapping import MappingParams
     from reloc.matching import ABLATIONS, MatchingParams
 
@@ -96,17 +99,15 @@ def eval_cmd(scenes, source, queries, negatives, window, max_window, map_frames,
         raise click.BadParameter(f"expected 0 or at least --window ({window}), got {max_window}",
                                  param_hint="--max-window")
     if quick:
-        spec = quick_spec(plane_source=source, noise=noise)
+        spec = sensor_spec(quick_spec(plane_source=source), noise)
         if scenes:
             spec = replace(spec, scenes=names)
+        if max_window is not None:
+            spec = replace(spec, window_max_frames=max_window)
     else:
-        spec = EvalSpec(scenes=names, plane_source=source, noise=noise, queries_per_kind=queries,
-                        negatives_per_scene=negatives, window_frames=window,
-                        window_max_frames=3 * window if max_window is None else max_window,
-                        query_spacing_frames=max(60, 3 * window + 30),
-                        map_trajectories=(("robot", map_frames), ("handheld", map_frames)))
-    if quick and max_window is not None:
-        spec = replace(spec, window_max_frames=max_window)
+        # The suite of benchmarks/reloc_accuracy.py, whose figures docs/BENCHMARKS.md records.
+        spec = suite_spec(noise, plane_source=source, scenes=names, queries=queries, negatives=negatives,
+                          window=window, max_window=max_window, map_frames=map_frames)
     seeds = {k: v for k, v in (("query_seed", query_seed), ("map_seed", map_seed)) if v is not None}
     spec = replace(spec, **seeds)
     extraction = None

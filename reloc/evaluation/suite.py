@@ -30,7 +30,7 @@ from reloc.transforms import pose_error
 
 __all__ = ["SCENES", "EvalSpec", "Query", "SceneResult", "Prepared", "make_plane_source", "extraction_for_sensor",
            "build_scene_map", "make_queries", "evaluate_queries", "prepare_suite", "run_suite", "run_ablation",
-           "quick_spec"]
+           "quick_spec", "sensor_spec", "suite_spec"]
 
 SCENES = ("living_room", "office", "apartment", "corridor", "meeting_rooms", "symmetric_room")
 
@@ -359,8 +359,36 @@ def run_ablation(spec: EvalSpec, variants: tuple[str, ...], matching: MatchingPa
     return out
 
 
+def sensor_spec(spec: EvalSpec, noise: str) -> EvalSpec:
+    """``spec`` with the noise model ``noise`` and the camera that goes with it: the stereo model is the OAK-D class
+    camera's, at its own resolution of 640 x 400 (its noise grows as z^2 / (f b), f in pixels, so the same camera
+    rendered smaller would be a much noisier one than any OAK); the other models keep the spec's camera and size."""
+    spec = replace(spec, noise=noise)
+    if noise == "stereo":
+        spec = replace(spec, camera="oak-d", width=640, height=400)
+    return spec
+
+
+def suite_spec(noise: str = "kinect", *, plane_source: str = "extraction", scenes: tuple[str, ...] = SCENES,
+               queries: int = 10, negatives: int = 20, window: int = 40, max_window: int | None = None,
+               map_frames: int = 3000, query_seed: int = EvalSpec.query_seed,
+               map_seed: int = EvalSpec.map_seed) -> EvalSpec:
+    """The suite of ``reloc eval`` and ``benchmarks/reloc_accuracy.py`` (the figures of docs/BENCHMARKS.md), one
+    function so that both run the same one: frames of 320 x 240 (the stereo camera's own size, see
+    :func:`sensor_spec`), ``queries`` positives per trajectory kind and scene, ``negatives`` per scene, windows of
+    ``window`` frames grown up to ``max_window`` (default 3 x ``window``; 0: they do not grow), queries at least
+    three windows apart, two mapping trajectories of ``map_frames`` frames."""
+    spec = EvalSpec(scenes=tuple(scenes), plane_source=plane_source, width=320, height=240, queries_per_kind=queries,
+                    negatives_per_scene=negatives, window_frames=window,
+                    window_max_frames=3 * window if max_window is None else max_window,
+                    query_spacing_frames=max(60, 3 * window + 30),
+                    map_trajectories=(("robot", map_frames), ("handheld", map_frames)),
+                    query_seed=query_seed, map_seed=map_seed)
+    return sensor_spec(spec, noise)
+
+
 def quick_spec(**changes) -> EvalSpec:
-    """A small suite (two scenes, few queries, short maps) for tests and the demo."""
+    """A small suite (two scenes, few queries, short maps, frames of 160 x 120) for tests and the demo."""
     base = EvalSpec(scenes=("living_room", "office"), map_trajectories=(("robot", 500), ("handheld", 500)),
                     queries_per_kind=4, negatives_per_scene=6)
     return replace(base, **changes)
