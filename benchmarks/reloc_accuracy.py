@@ -289,7 +289,8 @@ def main() -> int:
           f"{verdict['median_r_err_deg']} deg (< 3 cm and 0.5 deg: {verdict['error_ok']}); identifiable "
           f"{verdict['identifiable']} of {t['TP'] + t['FN']} positives (the recall's ceiling under the acceptance "
           f"rules {verdict['recall_ceiling']}), recall over them {verdict['recall_identifiable']}")
-    path = write_results(args.name, params={**vars(args), "spec": asdict(base)},
+    specs = {f"{source}/{noise}": asdict(suite(noise, plane_source=source)) for source, noise in sources}
+    path = write_results(args.name, params={**vars(args), "spec": specs},
                          results={"sources": results, "ablation": ablation, "verdict": verdict})
     print(f"wrote {path}")
     return 0
