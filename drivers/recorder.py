@@ -222,9 +222,9 @@ def record(source, out_dir: str | os.PathLike, *, n_frames: int | None = None, d
         raise ValueError(f"duration_s: expected a positive number of seconds, got {duration_s!r}")
     bar = None
     if progress:
-        from tqdm import tqdm
+        from reloc.progress import progress_bar
 
-        bar = tqdm(total=n_frames, unit="frame", desc="record", leave=False)
+        bar = progress_bar(total=n_frames, unit="frame", desc="record", leave=False)
     t0 = time.monotonic()
     # The camera's noise law goes with the recording, so that maps and queries built from it are extracted with it.
     law = source.noise_law()

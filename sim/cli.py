@@ -29,7 +29,6 @@ NOISES = ("none", "stereo", "kinect", "tof")
 def sim(scene, trajectory, n_frames, seed, scene_seed, noise, camera, width, height, people, rate_hz, out_dir,
         overwrite) -> None:
     """Render SCENE along a trajectory and write depth, labels, poses, camera and planes to --out."""
-    import sys
     import time
 
     from drivers.readers import noise_law_entry
@@ -48,7 +47,7 @@ def sim(scene, trajectory, n_frames, seed, scene_seed, noise, camera, width, hei
             "camera": camera, "people": people, "rate_hz": rate_hz, "n_frames": len(cam),
             "noise_law": noise_law_entry(cam.noise.extraction_law(cam.intrinsics.fx))}
     s = write_sequence(iter(cam), cam.scene, out_dir, overwrite=overwrite, metadata=meta,
-                       progress=len(cam) >= 50 and sys.stderr.isatty(), total=len(cam))
+                       progress=len(cam) >= 50, total=len(cam))  # a log gets a line every 10 s
     fps = s.n_frames / max(s.seconds, 1e-9)
     click.echo(f"wrote {s.n_frames} frames of {scene} ({cam.scene.n_planes} planes) to {s.out_dir}")
     click.echo(f"  camera {camera} {s.width}x{s.height}, noise {noise}, trajectory {trajectory}, seed {seed}"

@@ -137,9 +137,9 @@ def write_sequence(
     unrepresentable = 0
     it = frames
     if progress:
-        from tqdm import tqdm
+        from reloc.progress import progress_bar
 
-        it = tqdm(frames, total=total, unit="frame", desc=f"writing {out.name}", leave=False)
+        it = progress_bar(frames, total=total, unit="frame", desc=f"writing {out.name}", leave=False)
     n = 0
     last_stamp = None
     for frame in it:

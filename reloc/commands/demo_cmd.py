@@ -35,7 +35,7 @@ def demo(scene, negative_scene, source, queries, negatives, seed, config_path, j
     """
     import json
 
-    from tqdm import tqdm
+    from reloc.progress import progress_bar
 
     from reloc.atomic import atomic_write_text
     from reloc.config import load_config
@@ -60,7 +60,7 @@ def demo(scene, negative_scene, source, queries, negatives, seed, config_path, j
     cfg = load_config(config_path)
     spec = DemoSpec(scene=scene, negative_scene=negative_scene, plane_source=source, queries_per_kind=queries,
                     negatives=negatives, seed=seed)
-    bar = tqdm(total=4, desc="demo", disable=quiet, leave=False, bar_format="{desc}: {n}/{total} {postfix}")
+    bar = progress_bar(total=4, desc="demo", disable=quiet, leave=False, bar_format="{desc}: {n}/{total}{postfix}")
     state = {"last": None}
 
     def progress(step, done, total):

@@ -68,7 +68,7 @@ def eval_cmd(scenes, source, queries, negatives, window, max_window, map_frames,
     import json
     from dataclasses import asdict, replace
 
-    from tqdm import tqdm
+    from reloc.progress import progress_bar
 
     from reloc._numba import warm_up
     from reloc.atomic import atomic_write_text
@@ -119,7 +119,7 @@ def eval_cmd(scenes, source, queries, negatives, window, max_window, map_frames,
     warm_up(("reloc.matching._kernels", "reloc.mapping._kernels", "reloc.extraction.pipeline"), quiet=quiet)
     n_queries = len(spec.scenes) * (len(spec.query_kinds) * spec.queries_per_kind + spec.negatives_per_scene)
     variants = ABLATIONS if ablation else ("Ours",)
-    bar = tqdm(total=n_queries * len(variants), desc="eval", unit="query", disable=quiet, leave=False)
+    bar = progress_bar(total=n_queries * len(variants), desc="eval", unit="query", disable=quiet, leave=False)
 
     def progress(n, description):
         # Preparation steps say "scene: map" / "scene: queries"; every relocalized query counts one.

@@ -55,7 +55,7 @@ def locate(seq, map_path, out_path, frames_spec, window, max_window, stride, eve
 
     import numpy as np
     import yaml
-    from tqdm import tqdm
+    from reloc.progress import progress_bar
 
     from drivers.readers import open_sequence
     from reloc._numba import warm_up
@@ -116,7 +116,7 @@ def locate(seq, map_path, out_path, frames_spec, window, max_window, stride, eve
     lines, counts = [], {"relocalized": 0, "rejected": 0, "error": 0}
     accounts: list[str] = []
     identifiable = 0
-    for q in tqdm(queries, desc="locate", unit="query", disable=quiet, leave=False):
+    for q in progress_bar(queries, desc="locate", unit="query", disable=quiet, leave=False):
         record = {"frame": int(q), "stamp_ns": int(sequence.stamps_ns[q])}
         try:
             newest = planes_of(q)

@@ -101,7 +101,7 @@ def build(seq, out_path, frames_spec, source, config_path, quiet):
     from pathlib import Path
 
     import yaml
-    from tqdm import tqdm
+    from reloc.progress import progress_bar
 
     from drivers.readers import open_sequence
     from reloc._numba import warm_up
@@ -118,7 +118,7 @@ def build(seq, out_path, frames_spec, source, config_path, quiet):
     warm_up(("reloc.mapping._kernels", "reloc.extraction.pipeline") if source == "extraction" else
             ("reloc.mapping._kernels",), quiet=quiet)
     t0 = time.perf_counter()
-    with tqdm(total=len(idx), desc="map", unit="frame", disable=quiet, leave=False) as bar:
+    with progress_bar(total=len(idx), desc="map", unit="frame", disable=quiet, leave=False) as bar:
         frames = (sequence[i] for i in idx)
         plane_map = build_map(
             frames, plane_source, MappingParams.from_config(cfg), progress=bar.update,

@@ -416,7 +416,7 @@ def _plain(x):
 
 
 def _run_sequential(source, extract, relocalizer, profiler, window, fuse, frames, n_warm, quiet) -> dict:
-    from tqdm import tqdm
+    from reloc.progress import progress_bar
 
     pipe = SequentialPipeline(extract, relocalizer, profiler, window, fuse)
     it = iter(source)
@@ -429,7 +429,7 @@ def _run_sequential(source, extract, relocalizer, profiler, window, fuse, frames
                 break
             warm.process(frame)
     profiler.reset()  # the trace starts here
-    bar = tqdm(total=frames, desc="profile", unit="frame", disable=quiet, leave=False)
+    bar = progress_bar(total=frames, desc="profile", unit="frame", disable=quiet, leave=False)
     try:
         while read < frames:
             t0 = time.perf_counter_ns()

@@ -84,9 +84,9 @@ def planes(input_path, frames_spec, config_path, out_path, quiet):
             indices = parse_frames(frames_spec, len(seq))
             it = indices
             if not quiet:
-                from tqdm import tqdm
+                from reloc.progress import progress_bar
 
-                it = tqdm(indices, desc="planes", unit="frame", file=sys.stderr)
+                it = progress_bar(indices, desc="planes", unit="frame", file=sys.stderr)
             for i in it:
                 try:
                     frame = seq[i]
