@@ -20,6 +20,7 @@ import dataclasses
 import datetime as _dt
 import json
 import math
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -42,7 +43,8 @@ __all__ = [
 ]
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
-RESULTS_DIR = REPO_ROOT / "benchmarks" / "results"
+# Where results go: benchmarks/results, or RELOC_RESULTS_DIR (a test's smoke run writes there, not into the checkout).
+RESULTS_DIR = Path(os.environ.get("RELOC_RESULTS_DIR") or REPO_ROOT / "benchmarks" / "results")
 if str(REPO_ROOT) not in sys.path[:1]:
     sys.path.insert(0, str(REPO_ROOT))
 
@@ -158,7 +160,7 @@ def print_table(headers: Sequence[str], rows: Iterable[Sequence[Any]], **kwargs)
 def write_results(name: str, *, params: dict, results: Any, out_dir: Path | None = None) -> Path:
     """Write ``<out_dir>/<name>.json`` atomically with date, machine, git state, ``params`` and ``results``.
 
-    ``out_dir`` defaults to ``benchmarks/results``. Returns the path written.
+    ``out_dir`` defaults to ``benchmarks/results`` (``RELOC_RESULTS_DIR`` when set). Returns the path written.
     """
     from reloc.atomic import atomic_write_text
 

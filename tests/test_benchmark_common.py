@@ -241,3 +241,37 @@ def test_the_machine_record_names_the_blas_kernels_numpy_runs():
     env = dict(os.environ, OPENBLAS_CORETYPE="Sandybridge")
     out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "Sandybridge"
+
+
+def test_the_accuracy_benchmark_runs_the_suite_reloc_eval_saves(tmp_path):
+    """End to end on a tiny suite: ``reloc eval`` saves it, ``reloc_accuracy.py --prepared`` accepts it as its own
+    suite (every spec field and parameter compared), evaluates it beside its baselines and writes its JSON, with the
+    same outcomes as ``reloc eval`` printed."""
+    import json
+    import os
+    import subprocess
+
+    from click.testing import CliRunner
+
+    from reloc.cli import cli
+
+    tiny = ["--scenes", "living_room", "--queries", "1", "--negatives", "0", "--map-frames", "60", "--window", "4",
+            "--max-window", "0"]
+    res = CliRunner().invoke(cli, ["eval", "--quiet", "--json", str(tmp_path / "eval.json"), "--save-prepared",
+                                   str(tmp_path / "prep" / "extraction_kinect"), *tiny])
+    assert res.exit_code == 0, res.output
+    root = Path(__file__).resolve().parents[1]
+    env = {**os.environ, "RELOC_RESULTS_DIR": str(tmp_path / "results")}
+    done = subprocess.run([sys.executable, str(root / "benchmarks" / "reloc_accuracy.py"), "--noise", "kinect",
+                           "--no-oracle", "--prepared", str(tmp_path / "prep"), "--name", "smoke", *tiny],
+                          capture_output=True, text=True, timeout=300, env=env)
+    assert done.returncode == 0, done.stdout[-2000:] + done.stderr[-2000:]
+    out = json.loads((tmp_path / "results" / "smoke.json").read_text())
+    assert out["params"]["spec"]["extraction/kinect"]["width"] == 320
+    ours = out["results"]["sources"]["extraction/kinect/ours"]["outcomes"]
+    theirs = json.loads((tmp_path / "eval.json").read_text())["outcomes"]["Ours"]
+
+    def key(o):
+        return o["query"], o["label"], o["status"], o["reason"]
+
+    assert len(ours) == 2 and [key(o) for o in ours] == [key(o) for o in theirs]
