@@ -36,23 +36,23 @@ class LineProgress(tqdm):
 
         return print_status
 
-    _line_at: tuple | None = None  # (count, postfix, time) of the last line printed
+    _line_at: tuple | None = None  # (count, description, postfix, time) of the last line printed
 
     def display(self, msg=None, pos=None):
         if msg is None:
-            self._line_at = (self.n, self.postfix, self._time())
+            self._line_at = (self.n, self.desc, self.postfix, self._time())
         return super().display(msg, pos)
 
     def _shown(self) -> bool:
-        """Whether the last line printed shows the count and postfix of now."""
-        return self._line_at is not None and self._line_at[:2] == (self.n, self.postfix)
+        """Whether the last line printed shows the count, description and postfix of now."""
+        return self._line_at is not None and self._line_at[:3] == (self.n, self.desc, self.postfix)
 
     def refresh(self, nolock=False, lock_args=None):
-        # A postfix set (or a message written) between counts redraws a terminal's bar at once; a log takes it with
-        # the next count, or once the interval has passed.
+        # A terminal's bar is redrawn whenever its owner sets a description or postfix (often once an item); a log
+        # gets a line when the description changes (a new stage of the work), else once the interval has passed.
         last = self._line_at
-        if last is not None and last[0] == self.n and (
-                last[1] == self.postfix or self._time() - last[2] < self.mininterval):
+        if last is not None and last[1] == self.desc and (
+                self._shown() or self._time() - last[3] < self.mininterval):
             return False
         return super().refresh(nolock, lock_args)
 

@@ -61,9 +61,10 @@ def test_a_quiet_bar_prints_nothing_and_a_terminal_gets_tqdm_redrawing_in_place(
     assert "\r" in term.getvalue()
 
 
-def test_a_postfix_changing_between_counts_reaches_a_log_once_per_count_and_at_the_end():
-    """``reloc demo``'s bar: four steps, a postfix set for every item of each. A log gets the first redraw after each
-    count (the count itself, inside the interval, does not redraw), and the last state when the bar closes."""
+def test_a_log_gets_a_line_per_stage_and_the_last_state_however_often_its_owner_redraws():
+    """``reloc demo``'s bar sets a postfix for every item, ``reloc eval``'s a description for every query (the scene
+    and stage): a terminal redraws each time; a log gets a line when the description changes (a new stage), else at
+    most one per interval, and the last state when the bar closes."""
     log = io.StringIO()
     bar = progress_bar(total=4, desc="demo", leave=False, file=log, bar_format="{desc}: {n}/{total}{postfix}")
     for step in range(3):
@@ -73,5 +74,13 @@ def test_a_postfix_changing_between_counts_reaches_a_log_once_per_count_and_at_t
     for k in range(20):
         bar.set_postfix_str(f"relocalize {k + 1}/20")
     bar.close()
-    assert log.getvalue().splitlines() == ["demo: 0/4", "demo: 1/4, step1 0/20", "demo: 2/4, step2 0/20",
-                                           "demo: 3/4, relocalize 1/20", "demo: 3/4, relocalize 20/20"]
+    assert log.getvalue().splitlines() == ["demo: 0/4", "demo: 3/4, relocalize 20/20"]
+    log = io.StringIO()
+    bar = progress_bar(total=6, desc="eval: ", leave=False, file=log, bar_format="{desc}{n}/{total}")
+    for scene in ("office", "corridor"):
+        for _ in range(3):
+            bar.set_description(f"{scene}: relocalize")
+            bar.update(1)
+    bar.close()
+    assert log.getvalue().splitlines() == ["eval: 0/6", "office: relocalize: 0/6", "corridor: relocalize: 3/6",
+                                           "corridor: relocalize: 6/6"]
