@@ -74,7 +74,7 @@ def run_demo(spec: DemoSpec | None = None, cfg=None, *, progress: Callable[[str,
         make_queries,
     )
     from reloc.mapping import MappingParams
-    from reloc.matching import MatchingParams, Relocalizer
+    from reloc.matching import MatchingParams, Relocalizer, scaled_to_sensor
 
     spec = spec or DemoSpec()
     from sim.scenes import SCENE_NAMES
@@ -98,7 +98,6 @@ def run_demo(spec: DemoSpec | None = None, cfg=None, *, progress: Callable[[str,
 
         extraction = ExtractionParams.from_config(cfg)
     mapping = MappingParams.from_config(cfg)
-    matching = MatchingParams.from_config(cfg)
     base = EvalSpec(scenes=(spec.scene,), noise=spec.noise, camera=spec.camera, width=spec.width, height=spec.height,
                     map_trajectories=spec.map_trajectories, map_seed=spec.seed, queries_per_kind=spec.queries_per_kind,
                     query_seed=100 + spec.seed, window_frames=spec.window_frames, window_stride=spec.window_stride,
@@ -108,6 +107,9 @@ def run_demo(spec: DemoSpec | None = None, cfg=None, *, progress: Callable[[str,
     scene = make_scene(spec.scene)
     if extraction is not None:
         extraction = extraction_for_sensor(base, extraction)
+    # The decision's offsets follow the simulated sensor's noise law, as for a live camera (and as reloc eval does).
+    sensor = extraction_for_sensor(base)
+    matching = scaled_to_sensor(MatchingParams.from_config(cfg), sensor.noise_model, sensor.noise_coeff)
     source = make_plane_source(spec.plane_source, scene, extraction=extraction)
 
     t = time.perf_counter()

@@ -259,3 +259,40 @@ def test_eval_command_runs_the_benchmark_suite_with_each_sensor_camera(tmp_path)
     assert small.noise_coeff > 3.5 * oak.noise_coeff
     quick = sensor_spec(quick_spec(), "stereo")
     assert (quick.camera, quick.width, quick.height, quick.scenes) == ("oak-d", 640, 400, ("living_room", "office"))
+
+
+def test_the_demo_runs_with_a_stereo_camera_and_decides_at_its_noise(monkeypatch):
+    """``reloc demo --noise stereo`` simulates the OAK-D class camera at its 640 x 400 (as ``reloc eval`` does), and
+    the demo's matcher takes its decision offsets from that camera's noise law, not from the config's Kinect one."""
+    from click.testing import CliRunner
+
+    import reloc.demo
+    from reloc.cli import cli
+    from reloc.demo import DemoSpec, run_demo
+    from reloc.evaluation.suite import EvalSpec, extraction_for_sensor
+    from reloc.matching import MatchingParams
+    from reloc.matching.params import CONFLICT_SIGMAS, sensor_sigma_m
+
+    seen = []
+
+    def stop(spec, cfg=None, **kw):
+        seen.append(spec)
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(reloc.demo, "run_demo", stop)
+    CliRunner().invoke(cli, ["demo", "--noise", "stereo", "--quiet"])
+    CliRunner().invoke(cli, ["demo", "--quiet"])
+    assert [(s.noise, s.camera, s.width, s.height) for s in seen] == [("stereo", "oak-d", 640, 400),
+                                                                       ("kinect", "kinect", 320, 240)]
+    monkeypatch.undo()
+    spec = DemoSpec(noise="stereo", camera="oak-d", width=640, height=400, queries_per_kind=1, negatives=1,
+                    map_trajectories=(("robot", 120), ("handheld", 120)), window_frames=5, window_max_frames=0)
+    kept: dict = {}
+    result = run_demo(spec, keep=kept)
+    law = extraction_for_sensor(EvalSpec(noise="stereo", camera="oak-d", width=640, height=400))
+    sigma = sensor_sigma_m(law.noise_model, law.noise_coeff)
+    assert sigma == pytest.approx(0.0218, abs=0.001)  # 2.2 cm at 3 m
+    params = kept["relocalizer"].params
+    assert params.decision_conflict_m == pytest.approx(CONFLICT_SIGMAS * sigma)
+    assert params.decision_conflict_m > MatchingParams().decision_conflict_m and not params.occlusion
+    assert sum(result["counts"].values()) == 3 and result["counts"]["FP"] == 0

@@ -13,6 +13,9 @@ import click
 @click.option("--queries", type=click.IntRange(min=1), default=5, show_default=True,
               help="Positive queries per trajectory kind (robot-like and hand-held).")
 @click.option("--negatives", type=click.IntRange(min=0), default=10, show_default=True, help="Negative queries.")
+@click.option("--noise", type=click.Choice(["kinect", "stereo", "tof", "none"]), default="kinect", show_default=True,
+              help="Depth noise of the simulated camera: a Kinect-like camera at 320 x 240 (kinect, tof, none), or "
+                   "for stereo an OAK-D class camera at its 640 x 400, as in reloc eval.")
 @click.option("--seed", type=click.IntRange(min=0), default=1, show_default=True)
 @click.option("--config", "config_path", type=click.Path(exists=True, dir_okay=False), default=None,
               help="YAML config (defaults otherwise).")
@@ -26,7 +29,7 @@ import click
               help="Also write a Rerun recording (.rrd: the map, a frame with its planes, each query's submap at its "
                    "estimated pose and the truth); needs pip install rerun-sdk.")
 @click.option("--quiet", is_flag=True, help="No progress bar.")
-def demo(scene, negative_scene, source, queries, negatives, seed, config_path, json_path, plots_dir, rerun_path,
+def demo(scene, negative_scene, source, queries, negatives, noise, seed, config_path, json_path, plots_dir, rerun_path,
          quiet):
     """Simulate a scene, build its map, relocalize positive and negative queries, print the results table.
 
@@ -34,12 +37,13 @@ def demo(scene, negative_scene, source, queries, negatives, seed, config_path, j
     (cached for later runs).
     """
     import json
-
-    from reloc.progress import progress_bar
+    from dataclasses import replace
 
     from reloc.atomic import atomic_write_text
     from reloc.config import load_config
     from reloc.demo import DemoSpec, format_demo, run_demo
+    from reloc.evaluation.suite import SENSOR_CAMERAS
+    from reloc.progress import progress_bar
 
     if plots_dir:  # matplotlib checked before the long run, not after it
         from reloc.viz._mpl import require_matplotlib
@@ -59,7 +63,10 @@ def demo(scene, negative_scene, source, queries, negatives, seed, config_path, j
             raise click.ClickException(str(exc)) from None
     cfg = load_config(config_path)
     spec = DemoSpec(scene=scene, negative_scene=negative_scene, plane_source=source, queries_per_kind=queries,
-                    negatives=negatives, seed=seed)
+                    negatives=negatives, seed=seed, noise=noise)
+    if noise in SENSOR_CAMERAS:
+        camera, width, height = SENSOR_CAMERAS[noise]
+        spec = replace(spec, camera=camera, width=width, height=height)
     bar = progress_bar(total=4, desc="demo", disable=quiet, leave=False, bar_format="{desc}: {n}/{total}{postfix}")
     state = {"last": None}
 

@@ -68,8 +68,6 @@ def eval_cmd(scenes, source, queries, negatives, window, max_window, map_frames,
     import json
     from dataclasses import asdict, replace
 
-    from reloc.progress import progress_bar
-
     from reloc._numba import warm_up
     from reloc.atomic import atomic_write_text
     from reloc.config import load_config
@@ -79,6 +77,7 @@ def eval_cmd(scenes, source, queries, negatives, window, max_window, map_frames,
     from reloc.evaluation.suite import SCENES, prepare_suite, quick_spec, run_ablation, sensor_spec, suite_spec
     from reloc.mapping import MappingParams
     from reloc.matching import ABLATIONS, MatchingParams
+    from reloc.progress import progress_bar
 
     if ablation and explain:
         raise click.UsageError("--explain works without --ablation only")

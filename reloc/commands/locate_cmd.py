@@ -55,7 +55,6 @@ def locate(seq, map_path, out_path, frames_spec, window, max_window, stride, eve
 
     import numpy as np
     import yaml
-    from reloc.progress import progress_bar
 
     from drivers.readers import open_sequence
     from reloc._numba import warm_up
@@ -65,6 +64,7 @@ def locate(seq, map_path, out_path, frames_spec, window, max_window, stride, eve
     from reloc.evaluation.metrics import identifiable as identifiable_at
     from reloc.mapping import MappingParams, grow_submap, load_map
     from reloc.matching import MatchingParams, Relocalizer
+    from reloc.progress import progress_bar
     from reloc.transforms import pose_error
 
     cfg = sequence_config(load_config(config_path), seq, quiet)

@@ -101,13 +101,13 @@ def build(seq, out_path, frames_spec, source, config_path, quiet):
     from pathlib import Path
 
     import yaml
-    from reloc.progress import progress_bar
 
     from drivers.readers import open_sequence
     from reloc._numba import warm_up
     from reloc.atomic import atomic_write_text
     from reloc.config import load_config
     from reloc.mapping import MappingParams, build_map, save_map
+    from reloc.progress import progress_bar
 
     sequence = open_sequence(seq)
     cfg = sequence_config(load_config(config_path), seq, quiet)

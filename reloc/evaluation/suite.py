@@ -28,11 +28,13 @@ from reloc.matching import MatchingParams, Relocalizer, ablation_params, scaled_
 from reloc.planeset import PlaneSet
 from reloc.transforms import pose_error
 
-__all__ = ["SCENES", "EvalSpec", "Query", "SceneResult", "Prepared", "make_plane_source", "extraction_for_sensor",
+__all__ = ["SCENES", "SENSOR_CAMERAS", "EvalSpec", "Query", "SceneResult", "Prepared", "make_plane_source", "extraction_for_sensor",
            "build_scene_map", "make_queries", "evaluate_queries", "prepare_suite", "run_suite", "run_ablation",
            "quick_spec", "sensor_spec", "suite_spec"]
 
 SCENES = ("living_room", "office", "apartment", "corridor", "meeting_rooms", "symmetric_room")
+# A noise model that belongs to a camera of its own: (camera preset, width, height) it is simulated with.
+SENSOR_CAMERAS = {"stereo": ("oak-d", 640, 400)}
 
 
 @dataclass(frozen=True)
@@ -364,8 +366,9 @@ def sensor_spec(spec: EvalSpec, noise: str) -> EvalSpec:
     camera's, at its own resolution of 640 x 400 (its noise grows as z^2 / (f b), f in pixels, so the same camera
     rendered smaller would be a much noisier one than any OAK); the other models keep the spec's camera and size."""
     spec = replace(spec, noise=noise)
-    if noise == "stereo":
-        spec = replace(spec, camera="oak-d", width=640, height=400)
+    if noise in SENSOR_CAMERAS:
+        camera, width, height = SENSOR_CAMERAS[noise]
+        spec = replace(spec, camera=camera, width=width, height=height)
     return spec
 
 
