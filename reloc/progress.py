@@ -91,6 +91,8 @@ def progress_bar(*args, file=None, **kwargs) -> tqdm:
     """``tqdm(*args, file=file, **kwargs)`` on a terminal (``file`` None: stderr); elsewhere a :class:`LineProgress`
     printing a plain-ASCII line at most every ``LOG_INTERVAL_S`` seconds (or ``mininterval``, if larger)."""
     stream = sys.stderr if file is None else file
+    if stream is None:  # no stderr at all (a detached process): nothing to show it on
+        return tqdm(*args, disable=True, **{k: v for k, v in kwargs.items() if k != "disable"})
     if _is_terminal(stream):
         return tqdm(*args, file=stream, **kwargs)
     kwargs["mininterval"] = max(float(kwargs.get("mininterval", 0.0)), LOG_INTERVAL_S)

@@ -141,3 +141,15 @@ def test_a_loaded_suite_is_checked_against_every_parameter_it_was_built_with(pre
         "extraction.min_points_per_voxel: saved 12, asked 20", "extraction.voxel_size_m: saved 0.25, asked 0.3"]
     assert mismatch(loaded, {}, spec, params) == [
         "no parameters recorded (saved by an older version): prepare it again"]
+    # The layer merge is compared as it acts: a suite saved when its default was 0.0 is the one asked for now (null)
+    # with every sensor but stereo, where null means 0.5.
+    old = json.loads(json.dumps(meta_ext))
+    old["params"]["extraction"]["layer_min_shared"] = 0.0
+    assert built_with(extracted)["extraction"]["layer_min_shared"] is None
+    assert mismatch(replace(loaded, spec=extracted), old, extracted, built_with(extracted)) == []
+    stereo = replace(extracted, noise="stereo", camera="oak-d", width=640, height=400)
+    old_stereo = {"params": built_with(stereo)}
+    old_stereo["params"]["extraction"]["layer_min_shared"] = 0.0
+    assert mismatch(replace(loaded, spec=stereo), old_stereo, stereo, built_with(stereo)) == [
+        "extraction.layer_min_shared: saved 0.0, asked 0.5"]
+    assert mismatch(replace(loaded, spec=stereo), {"params": built_with(stereo)}, stereo, built_with(stereo)) == []

@@ -54,6 +54,13 @@ def test_a_quiet_bar_prints_nothing_and_a_terminal_gets_tqdm_redrawing_in_place(
     with progress_bar(total=5, desc="map", disable=True, file=log) as bar:
         bar.update(5)
     assert log.getvalue() == ""
+    import sys
+
+    saved, sys.stderr = sys.stderr, None  # a detached process: no stream at all
+    try:
+        assert list(progress_bar(range(3), desc="map")) == [0, 1, 2]
+    finally:
+        sys.stderr = saved
     term = _Terminal()
     with progress_bar(total=5, desc="map", leave=False, file=term, mininterval=0) as bar:
         assert type(bar) is tqdm

@@ -159,6 +159,17 @@ def built_with(spec, extraction=None, mapping=None) -> dict:
     return json.loads(json.dumps({"extraction": ext, "mapping": asdict(mapping or MappingParams())}))
 
 
+def _layer_share_resolved(ext):
+    """Extraction parameters (a dict from :func:`built_with`) with ``layer_min_shared`` as the merge acts on it
+    (``ExtractionParams.layer_share``): a suite saved when its default was 0.0 and one saved since it is null
+    (4bb3ede) are the same suite for every sensor but stereo."""
+    if ext.get("layer_min_shared", 0.0) is not None:
+        return ext
+    from reloc.extraction.params import STEREO_LAYER_MIN_SHARED
+
+    return {**ext, "layer_min_shared": STEREO_LAYER_MIN_SHARED if ext.get("noise_model") == "stereo" else 0.0}
+
+
 def mismatch(prepared, meta: dict, spec, params: dict) -> list[str]:
     """How a loaded suite (``prepared``, ``meta``) differs from the one asked for (``spec``, ``params`` from
     :func:`built_with`): one ``"name: saved X, asked Y"`` line per differing spec field or parameter; empty when
@@ -174,6 +185,8 @@ def mismatch(prepared, meta: dict, spec, params: dict) -> list[str]:
             if have != want:
                 out.append(f"{group}: saved {have!r}, asked {want!r}")
             continue
+        if group == "extraction":
+            have, want = _layer_share_resolved(have), _layer_share_resolved(want)
         out += [f"{group}.{k}: saved {have.get(k, '(none)')!r}, asked {want.get(k, '(none)')!r}"
                 for k in sorted(set(have) | set(want)) if have.get(k, "(none)") != want.get(k, "(none)")]
     return out
