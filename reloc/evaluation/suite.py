@@ -28,9 +28,9 @@ from reloc.matching import MatchingParams, Relocalizer, ablation_params, scaled_
 from reloc.planeset import PlaneSet
 from reloc.transforms import pose_error
 
-__all__ = ["SCENES", "SENSOR_CAMERAS", "EvalSpec", "Query", "SceneResult", "Prepared", "make_plane_source", "extraction_for_sensor",
-           "build_scene_map", "make_queries", "evaluate_queries", "prepare_suite", "run_suite", "run_ablation",
-           "quick_spec", "sensor_spec", "suite_spec"]
+__all__ = ["SCENES", "SENSOR_CAMERAS", "EvalSpec", "Query", "SceneResult", "Prepared", "make_plane_source",
+           "extraction_for_sensor", "build_scene_map", "make_queries", "evaluate_queries", "prepare_suite", "run_suite",
+           "run_ablation", "quick_spec", "sensor_spec", "suite_spec"]
 
 SCENES = ("living_room", "office", "apartment", "corridor", "meeting_rooms", "symmetric_room")
 # A noise model that belongs to a camera of its own: (camera preset, width, height) it is simulated with.
@@ -377,7 +377,7 @@ def suite_spec(noise: str = "kinect", *, plane_source: str = "extraction", scene
                map_frames: int = 3000, query_seed: int = EvalSpec.query_seed,
                map_seed: int = EvalSpec.map_seed) -> EvalSpec:
     """The suite of ``reloc eval`` and ``benchmarks/reloc_accuracy.py`` (the figures of docs/BENCHMARKS.md), one
-    function so that both run the same one: frames of 320 x 240 (the stereo camera's own size, see
+    function so that both run the same one: frames of 320 x 240 (for stereo noise the OAK-D's own 640 x 400, see
     :func:`sensor_spec`), ``queries`` positives per trajectory kind and scene, ``negatives`` per scene, windows of
     ``window`` frames grown up to ``max_window`` (default 3 x ``window``; 0: they do not grow), queries at least
     three windows apart, two mapping trajectories of ``map_frames`` frames."""
