@@ -37,12 +37,11 @@ def demo(scene, negative_scene, source, queries, negatives, noise, seed, config_
     (cached for later runs).
     """
     import json
-    from dataclasses import replace
 
     from reloc.atomic import atomic_write_text
     from reloc.config import load_config
     from reloc.demo import DemoSpec, format_demo, run_demo
-    from reloc.evaluation.suite import SENSOR_CAMERAS
+    from reloc.evaluation.suite import sensor_spec
     from reloc.progress import progress_bar
 
     if plots_dir:  # matplotlib checked before the long run, not after it
@@ -62,11 +61,8 @@ def demo(scene, negative_scene, source, queries, negatives, noise, seed, config_
         except ImportError as exc:
             raise click.ClickException(str(exc)) from None
     cfg = load_config(config_path)
-    spec = DemoSpec(scene=scene, negative_scene=negative_scene, plane_source=source, queries_per_kind=queries,
-                    negatives=negatives, seed=seed, noise=noise)
-    if noise in SENSOR_CAMERAS:
-        camera, width, height = SENSOR_CAMERAS[noise]
-        spec = replace(spec, camera=camera, width=width, height=height)
+    spec = sensor_spec(DemoSpec(scene=scene, negative_scene=negative_scene, plane_source=source,
+                                queries_per_kind=queries, negatives=negatives, seed=seed), noise)
     bar = progress_bar(total=4, desc="demo", disable=quiet, leave=False, bar_format="{desc}: {n}/{total}{postfix}")
     state = {"last": None}
 

@@ -361,10 +361,12 @@ def run_ablation(spec: EvalSpec, variants: tuple[str, ...], matching: MatchingPa
     return out
 
 
-def sensor_spec(spec: EvalSpec, noise: str) -> EvalSpec:
-    """``spec`` with the noise model ``noise`` and the camera that goes with it: the stereo model is the OAK-D class
-    camera's, at its own resolution of 640 x 400 (its noise grows as z^2 / (f b), f in pixels, so the same camera
-    rendered smaller would be a much noisier one than any OAK); the other models keep the spec's camera and size."""
+def sensor_spec(spec, noise: str):
+    """``spec`` (an :class:`EvalSpec`, a :class:`reloc.demo.DemoSpec`: a dataclass with ``noise``, ``camera``,
+    ``width`` and ``height``) with the noise model ``noise`` and the camera that goes with it: the stereo model is the
+    OAK-D class camera's, at its own resolution of 640 x 400 (its noise grows as z^2 / (f b), f in pixels, so the same
+    camera rendered smaller would be a much noisier one than any OAK); the other models keep the spec's camera and
+    size."""
     spec = replace(spec, noise=noise)
     if noise in SENSOR_CAMERAS:
         camera, width, height = SENSOR_CAMERAS[noise]
