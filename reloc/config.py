@@ -588,7 +588,8 @@ class EvaluationConfig(_Section):
         "fraction), however the density ranks them: the four quarter turns of a square room.",
     )
     equal_rival_margin: float = Field(
-        0.0, ge=0, description="With equal_rivals, how much less evidence such a pose may have and still count."
+        0.5, ge=0, description="With equal_rivals, how much less evidence such a pose may have and still count (as "
+        "unrefined_rival_margin: a stereo view's twin one room along won by 0.03 of the submap explained).",
     )
     rival_unknown_weight: float = Field(
         0.75, ge=0, le=1,

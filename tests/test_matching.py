@@ -582,8 +582,15 @@ def test_a_refined_rival_with_as_much_evidence_makes_the_winner_ambiguous(living
     assert not out.accepted and out.best == -1
     assert out.reason == ("ambiguous: a pose 3.00 m from the winner matches 13 planes and 0.96 of the submap, "
                           "with as much evidence")
-    # Two more planes in conflict: 10.96 < 12, the winner stands.
+    # Two more planes in conflict: 10.96 < 12 - 0.5 (equal_rival_margin), the winner stands.
     assert judge(modes([12, 13, 9], [1, 3, 1], [1.0, 0.96, 0.7], [0.0, 3.0, 5.0]), won) is won
+    # Within the margin: the tuned stereo meeting-room view robot/5, whose twin one room along won with 9 - 2 + 0.93
+    # against its true pose's 10 - 3 + 0.90, 0.03 less: rejected as ambiguous (at margin 0 it was answered, 5.1 m off).
+    twin = modes([9, 10, 6], [2, 3, 1], [0.93, 0.90, 0.7], [0.0, 5.12, 9.0])
+    twin.R[1] = np.eye(3)
+    assert not judge(twin, won).accepted
+    exact = Relocalizer(living_relocalizer.planes, MatchingParams(equal_rival_margin=0.0))
+    assert exact._equal_rival(twin, won) is won
     # The same evidence 10 cm and no rotation from the winner is the winner's own mode.
     near = modes([12, 14, 9], [1, 1, 1], [1.0, 1.0, 0.7], [0.0, 0.1, 5.0])
     near.R[1] = np.eye(3)

@@ -88,7 +88,7 @@ class MatchingParams:
     unrefined_rivals: bool = True
     unrefined_rival_margin: float = 0.5
     equal_rivals: bool = True
-    equal_rival_margin: float = 0.0
+    equal_rival_margin: float = 0.5
     rival_unknown_weight: float = 0.75
     evidence_area_m2: float = 1.0
     distinct_translation_m: float = 0.25
