@@ -36,7 +36,7 @@ from _common import print_table, results_name, write_results  # noqa: E402
 
 from reloc._numba import warm_up  # noqa: E402
 from reloc.evaluation.suite import (  # noqa: E402
-    SCENES, EvalSpec, build_scene_map, extraction_for_sensor, make_plane_source, sensor_spec,
+    SCENES, EvalSpec, build_scene_map, extraction_for_sensor, make_plane_source, suite_spec,
 )
 from reloc.extraction import ExtractionParams  # noqa: E402
 from sim.scenes import make_scene  # noqa: E402
@@ -94,9 +94,8 @@ def map_errors(plane_map, scene) -> dict:
 
 
 def _spec(noise: str, scenes: tuple[str, ...], map_frames: int, map_seed: int) -> EvalSpec:
-    spec = EvalSpec(scenes=scenes, width=320, height=240, plane_source="extraction", map_seed=map_seed,
-                    map_trajectories=(("robot", map_frames), ("handheld", map_frames)))
-    return sensor_spec(spec, noise)  # the cameras and sizes of reloc_accuracy.py and reloc eval
+    # The suite's maps, as reloc_accuracy.py and reloc eval build them (its queries are not used here).
+    return suite_spec(noise, scenes=scenes, map_frames=map_frames, map_seed=map_seed)
 
 
 def main() -> None:

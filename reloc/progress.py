@@ -20,19 +20,16 @@ LOG_INTERVAL_S = 10.0
 
 
 class LineProgress(tqdm):
-    """tqdm printing whole lines (a log's progress): each state it shows on a line of its own, none repeated."""
+    """tqdm printing whole lines (a log's progress): each state it shows on a line of its own (:meth:`refresh` and
+    :meth:`close` print none that shows what the last one did)."""
 
     @staticmethod
     def status_printer(file):
-        last = [""]
-
         def print_status(s: str) -> None:
             s = s.strip()
-            if not s or s == last[0]:  # clearing (tqdm.write, close) prints nothing; a redraw of the same, once
-                return
-            file.write(s + "\n")
-            getattr(file, "flush", lambda: None)()
-            last[0] = s
+            if s:  # clearing (tqdm.write, close) prints nothing
+                file.write(s + "\n")
+                getattr(file, "flush", lambda: None)()
 
         return print_status
 
