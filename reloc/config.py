@@ -597,6 +597,13 @@ class EvaluationConfig(_Section):
         "map with free space; 1 = as a match, 0 = not at all), scaled down linearly with the fraction of the "
         "plane's place the map saw empty (none left at max_free_fraction).",
     )
+    noisy_rival_unknown_weight: float = Field(
+        0.5, ge=0, le=1,
+        description="rival_unknown_weight for a sensor whose depth noise at 3 m is above noisy_sensor_sigma_m (never "
+        "raised): its sparser map leaves rivals more places it knows nothing about (the suite's stereo, tuned and "
+        "replicates A-E: +13 true poses at 0.5, no false positive; Kinect and ToF keep 0.75, where 0.5 let in 5 and "
+        "4 false positives).",
+    )
     evidence_area_m2: float = Field(
         1.0, gt=0, description="A matched plane's weight (Eq. 12-13) grows with its area up to this (small facets are "
         "weak evidence, and often clutter).",

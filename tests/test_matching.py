@@ -1105,3 +1105,32 @@ def test_a_noisy_sensor_matches_planes_with_fewer_samples_on_the_map_plane():
     assert match["as seen"] >= 0
     assert match["kinect"] == -1
     assert match["stereo"] == match["as seen"]
+
+
+def test_a_noisy_sensors_rivals_get_less_credit_for_planes_the_map_knows_nothing_about():
+    # Two poses 2 m apart: the true one matches all 7 submap planes; a rival matches 3 other map planes and leaves 4
+    # where the map knows nothing. Credited with 0.75 of a match for those 4 (Kinect, ToF), the rival holds the
+    # true pose below 1.55 times its score; with the 0.5 a sensor noisier than 2 cm at 3 m gets, it does not.
+    from reloc.config import Config
+    from reloc.matching.params import scaled_to_sensor
+    from reloc.matching.scoring import decide
+
+    kinect = MatchingParams.from_config(Config())
+    stereo = MatchingParams.from_config(
+        Config.model_validate({"extraction": {"noise_model": "stereo", "noise_coeff": 2.4e-3}}))
+    assert (kinect.rival_unknown_weight, stereo.rival_unknown_weight) == (0.75, 0.5)
+    assert scaled_to_sensor(MatchingParams(rival_unknown_weight=0.3), "stereo", 2.4e-3).rival_unknown_weight == 0.3
+    R = np.stack([np.eye(3)] * 2)
+    t = np.array([[0.0, 0.0, 0.0], [2.0, 0.0, 0.0]])
+    match = np.array([[0, 1, 2, 3, 4, 5, 6], [10, 11, 12, -1, -1, -1, -1]], np.int32)
+    state = np.where(match >= 0, 0, 1).astype(np.int8)
+    got = {}
+    for name, params in (("kinect", kinect), ("stereo", stereo)):
+        got[name] = decide(R, t, match, (match >= 0).astype(float), np.array([7, 3]), np.array([1.0, 3 / 7]),
+                           params, state=state, areas=np.full(7, 2.0), unknown=np.array([0.0, 4 / 7]))
+    assert not got["kinect"].accepted and got["kinect"].reason.startswith("ambiguous"), got["kinect"].reason
+    assert got["stereo"].accepted and got["stereo"].best == 0, got["stereo"].reason
+    assert got["stereo"].score == pytest.approx(got["kinect"].score)  # the same density; only the rival's credit
+    assert got["stereo"].runner_up_score < got["kinect"].runner_up_score
+    with pytest.raises(ValueError, match="noisy_rival_unknown_weight"):
+        MatchingParams(noisy_rival_unknown_weight=1.5)
