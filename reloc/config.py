@@ -600,9 +600,10 @@ class EvaluationConfig(_Section):
     noisy_rival_unknown_weight: float = Field(
         0.5, ge=0, le=1,
         description="rival_unknown_weight for a sensor whose depth noise at 3 m is above noisy_sensor_sigma_m (never "
-        "raised): its sparser map leaves rivals more places it knows nothing about (the suite's stereo, tuned and "
-        "replicates A-E: +13 true poses at 0.5, no false positive; Kinect and ToF keep 0.75, where 0.5 let in 5 and "
-        "4 false positives).",
+        "raised): with stereo noise the credit turned true poses away against rivals that matched fewer planes and "
+        "left more of their submap where the map knows nothing (the suite's stereo, tuned and replicates A-E: +13 "
+        "true poses at 0.5, no false positive; Kinect and ToF keep 0.75, where 0.5 let in 5 and 4 false "
+        "positives).",
     )
     evidence_area_m2: float = Field(
         1.0, gt=0, description="A matched plane's weight (Eq. 12-13) grows with its area up to this (small facets are "
