@@ -33,7 +33,6 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 # _common first: it puts this checkout's root on sys.path before anything of the project is imported.
 from _common import print_table, results_name, write_results  # noqa: E402
 
-
 from reloc._numba import warm_up  # noqa: E402
 from reloc.evaluation.suite import (  # noqa: E402
     SCENES, EvalSpec, build_scene_map, extraction_for_sensor, make_plane_source, suite_spec,
