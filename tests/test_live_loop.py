@@ -405,13 +405,16 @@ def test_loop_grows_the_window_of_a_relocalization_that_cannot_pin_a_pose(living
 
 
 def test_loop_with_plane_extraction_and_fused_submaps(living_room_map):
-    """The real pipeline: extraction of every 640x400 frame, submaps of 3 frames fused by reloc.mapping."""
+    """The real pipeline: extraction of every 640x400 frame, submaps of 3 frames fused by reloc.mapping, with the
+    camera's own noise law in extraction and matching, as ``reloc run`` takes it."""
     from reloc.config import Config
-    from reloc.live.factory import make_extractor, make_submap_fuser
+    from reloc.live.factory import make_extractor, make_relocalizer, make_submap_fuser, with_camera_noise
 
-    map_planes, reloc = living_room_map
-    cfg = Config()
+    map_planes, _ = living_room_map
     src = OdometrySource(SimSource("living_room", n_frames=30, camera="oak-d", rate="fast"))
+    cfg, _ = with_camera_noise(Config(), src.inner)  # the wrapper adds odometry, not a noise law
+    assert cfg.extraction.noise_model == "stereo"
+    reloc = make_relocalizer(map_planes, cfg)
     extract = make_extractor(cfg)
 
     def extract_and_ask(frame):
@@ -444,8 +447,11 @@ def test_reloc_run_replays_a_recording_against_a_map_file(tmp_path):
     from sim.ground_truth import scene_planes
     from sim.writer import write_sequence
 
+    from drivers.readers import noise_law_entry
+
     src = SimSource("living_room", n_frames=12, camera="oak-d", rate="fast")
-    write_sequence(iter(src), src.scene, tmp_path / "seq")
+    # With the camera's noise law, as `reloc sim` writes it: the run extracts and matches for a stereo camera.
+    write_sequence(iter(src), src.scene, tmp_path / "seq", metadata={"noise_law": noise_law_entry(src.noise_law())})
     planes, _ = scene_planes(src.scene)
     save_map(tmp_path / "map.npz", PlaneMap(planes, np.ones(len(planes), dtype=np.int64)))
     out = tmp_path / "run.json"
