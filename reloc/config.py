@@ -520,6 +520,13 @@ class EvaluationConfig(_Section):
         "way (in conflict with the map) is rejected, however much else it matches (0 = off; off for a sensor noisier "
         "than occlusion_max_sensor_sigma_m).",
     )
+    min_uncontradicted_planes: int = Field(
+        5, ge=0,
+        description="Scene uniqueness counted net of the map's contradictions: the winning pose's matched planes "
+        "less its planes in conflict with the map (off a map surface facing the same way, or hidden behind one) must "
+        "be at least this (0 = off; off for a sensor noisier than occlusion_max_sensor_sigma_m). A pose whose five "
+        "matches are undone by two contradictions has the evidence of three.",
+    )
     match_max_angle_deg: float = Field(5.0, gt=0, description="A submap plane matches a map plane within this angle...")
     match_max_offset_m: float = Field(0.08, gt=0, description="...and this offset, after the transform.")
     kde_sigma_translation_m: float = Field(0.1, gt=0, description="Eq. 14 information matrix: translation scale.")

@@ -772,7 +772,8 @@ def test_planes_the_map_hides_take_their_area_off_the_weakest_directions_support
     corridor (0.56 m^2). Where the map's wall has no doorway (a look-alike place), that wall lies behind the map's
     wall: the pose keeps 0.6 - 0.56 m^2 along the corridor and is rejected, by ``confirm`` and ``locate`` alike;
     through the doorway, with ``hidden_against_support`` off or with the support test off (0 m^2, as in the paper's
-    rules) it stands (within 1 cm)."""
+    rules) it stands (within 1 cm). The look-alike's 5 matched planes less the hidden one leave 4, which
+    ``min_uncontradicted_planes`` rejects first; it is off here, to test the support alone."""
     from reloc.evaluation.synthetic import Rect, room
 
     corridor = [r for r in room(30.0, 2.0, 2.7) if r.normal[1] < 0.5]  # all but the y = 0 wall
@@ -787,8 +788,10 @@ def test_planes_the_map_hides_take_their_area_off_the_weakest_directions_support
         sub = view_planes(corridor + wall + cabinet + [beyond], T)
         along = np.abs(sub.normals @ T[:3, :3].T[:, 0]) > 0.9  # the cabinet and the wall beyond face along x
         assert len(sub) == 6 and sorted(np.round(sub.areas[along], 2)) == [0.56, 0.6]
-        for setting, params in (("on", MatchingParams()), ("off", MatchingParams(hidden_against_support=False)),
-                                ("no support test", MatchingParams(min_direction_support_m2=0.0))):
+        base = MatchingParams(min_uncontradicted_planes=0)
+        for setting, params in (("on", base), ("off", base.with_(hidden_against_support=False)),
+                                ("no support test", base.with_(min_direction_support_m2=0.0)),
+                                ("net uniqueness", MatchingParams())):
             reloc = Relocalizer(scene_planes(corridor + wall + cabinet), params)
             for how, r in (("confirm", reloc.confirm(sub, T)), ("locate", reloc.locate(sub))):
                 if r.relocalized:
@@ -800,6 +803,9 @@ def test_planes_the_map_hides_take_their_area_off_the_weakest_directions_support
                                                 "cameras (needs 0.4)")
         assert outcomes["doorway", "on", how] == "relocalized"
         assert outcomes["solid", "off", how] == outcomes["solid", "no support test", how] == "relocalized"
+        assert outcomes["solid", "net uniqueness", how] == ("contradicted by the map: 5 planes matched less 1 in "
+                                                            "conflict with it or hidden behind it leaves 4, under 5")
+        assert outcomes["doorway", "net uniqueness", how] == "relocalized"
 
 
 def test_hidden_planes_count_against_a_pose_as_conflicts_do():
@@ -878,6 +884,38 @@ def test_a_large_plane_in_conflict_with_the_map_vetoes_the_pose():
     stereo = Config.model_validate({"extraction": {"noise_model": "stereo", "noise_coeff": 2.4e-3}})
     assert MatchingParams.from_config(stereo).max_conflict_area_m2 == 0.0
     assert MatchingParams.from_config(Config()).max_conflict_area_m2 == 1.0
+
+
+def test_planes_in_conflict_with_the_map_count_against_scene_uniqueness():
+    """A bare room seen from its middle: floor, ceiling and three walls match the map, five planes, the least that
+    scene uniqueness accepts. Each panel of 0.49 m^2 hung 8 cm in front of the far wall, unknown to the map, is in
+    conflict with that wall at the decision's offsets (too small for the area veto of ``max_conflict_area_m2``) and
+    takes one plane off the five: with ``min_uncontradicted_planes`` 5 the pose is rejected with one panel, at 4 with
+    two, and with the test off (0) it stands with both, exactly. A sensor too noisy for the occlusion test gets the
+    test off too."""
+    from reloc.config import Config
+    from reloc.evaluation.synthetic import Rect, room
+
+    rects = room(6.0, 5.0, 2.6)
+    T = look_at((1.0, 2.0, 1.4), (6.0, 3.0, 1.0))
+    reasons = {}
+    for panels in (0, 1, 2):
+        extra = [Rect((5.92, 1.2 + 1.6 * k, 1.3), (-1, 0, 0), (0, 1, 0), 0.35, 0.35) for k in range(panels)]
+        sub = view_planes(rects + extra, T)
+        assert len(sub) == 5 + panels and np.sum(np.abs(sub.areas - 0.49) < 0.01) == panels
+        for least in (0, 4, 5):
+            r = Relocalizer(scene_planes(rects), MatchingParams(min_uncontradicted_planes=least)).confirm(sub, T)
+            if r.relocalized:
+                assert pose_error(r.T_map_cam, T)[0] < 1e-6
+            reasons[panels, least] = r.reason or "relocalized"
+    assert {k for k, v in reasons.items() if v != "relocalized"} == {(1, 5), (2, 5), (2, 4)}
+    assert reasons[1, 5] == ("contradicted by the map: 5 planes matched less 1 in conflict with it or hidden behind "
+                             "it leaves 4, under 5")
+    assert reasons[2, 4] == ("contradicted by the map: 5 planes matched less 2 in conflict with it or hidden behind "
+                             "it leaves 3, under 4")
+    stereo = Config.model_validate({"extraction": {"noise_model": "stereo", "noise_coeff": 2.4e-3}})
+    assert MatchingParams.from_config(stereo).min_uncontradicted_planes == 0
+    assert MatchingParams.from_config(Config()).min_uncontradicted_planes == MatchingParams().min_uncontradicted_planes
 
 
 def test_a_pose_may_win_with_the_rest_of_its_submap_unknown_to_the_map_but_not_in_conflict():

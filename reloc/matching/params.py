@@ -50,6 +50,7 @@ class MatchingParams:
     min_direction_support_m2: float = 0.4
     hidden_against_support: bool = True
     max_conflict_area_m2: float = 1.0
+    min_uncontradicted_planes: int = 5
     min_explained_fraction: float = 0.85
     well_matched_planes: int = 0
     well_matched_explained_fraction: float = 0.85
@@ -194,6 +195,7 @@ class MatchingParams:
             min_direction_support_m2=e.min_direction_support_m2,
             hidden_against_support=e.hidden_against_support,
             max_conflict_area_m2=e.max_conflict_area_m2,
+            min_uncontradicted_planes=e.min_uncontradicted_planes,
             min_explained_fraction=e.min_explained_fraction,
             well_matched_planes=e.well_matched_planes,
             well_matched_explained_fraction=e.well_matched_explained_fraction,
@@ -273,8 +275,8 @@ def scaled_to_sensor(params: MatchingParams, noise_model: str, noise_coeff: floa
     """``params`` with ``decision_max_offset_m`` and ``decision_conflict_m`` raised to ``DECISION_SIGMAS`` and
     ``CONFLICT_SIGMAS`` times the sensor's noise at 3 m (never lowered), ``occlusion`` off when that noise exceeds
     ``occlusion_max_sensor_sigma_m`` (and ``path_test`` with it: both trust the map's doorways to be open; and the
-    conflict test of ``max_conflict_area_m2``: at their true poses the suite's stereo views had planes of up to 6.7
-    m^2 in conflict, far planes tilted off the map's walls), and
+    conflict tests of ``max_conflict_area_m2`` and ``min_uncontradicted_planes``: at their true poses the suite's
+    stereo views had planes of up to 6.7 m^2 in conflict, far planes tilted off the map's walls), and
     ``min_projection_ratio`` lowered to ``noisy_min_projection_ratio``, ``refine_max_angle_rad`` raised to
     ``noisy_refine_max_angle_rad``, ``well_matched_planes`` and ``well_matched_explained_fraction`` set to their
     ``noisy_`` values and ``rival_unknown_weight`` lowered to ``noisy_rival_unknown_weight`` when that noise exceeds
@@ -314,6 +316,8 @@ def scaled_to_sensor(params: MatchingParams, noise_model: str, noise_coeff: floa
         occlusion=params.occlusion and sigma <= params.occlusion_max_sensor_sigma_m,
         path_test=params.path_test and sigma <= params.occlusion_max_sensor_sigma_m,
         max_conflict_area_m2=params.max_conflict_area_m2 if sigma <= params.occlusion_max_sensor_sigma_m else 0.0,
+        min_uncontradicted_planes=(params.min_uncontradicted_planes if sigma <= params.occlusion_max_sensor_sigma_m
+                                   else 0),
         min_projection_ratio=(min(params.min_projection_ratio, params.noisy_min_projection_ratio)
                               if noisy else params.min_projection_ratio),
         refine_max_angle_rad=(max(params.refine_max_angle_rad, params.noisy_refine_max_angle_rad)

@@ -689,13 +689,22 @@ class Relocalizer:
     def _conclude(self, used, order, vs_ptr, vs_pts, hyps, tightened: bool, decision: Decision, min_matched: int,
                   counts: dict, timings: dict, trace: dict | None = None) -> RelocResult:
         """The accepted ``decision``'s winner (a hypothesis of ``hyps``; ``tightened``: of the decision over refined
-        poses) refined by least squares over all its matched planes (``refine_iterations`` times, each refined pose
+        poses), held to ``min_uncontradicted_planes`` matched planes net of its planes in conflict with the map,
+        refined by least squares over all its matched planes (``refine_iterations`` times, each refined pose
         verified again), then held to the final tolerances, to the explained fraction, to no plane of
         ``max_conflict_area_m2`` or more in conflict with the map and to the support along its weakest direction: the
         result, relocalized or rejected with the reason."""
         p = self.params
         t0 = time.perf_counter()
         b = decision.best
+        if p.min_uncontradicted_planes > 0:
+            # Scene uniqueness net of the map's contradictions, at the decision's offsets: a corridor view answered
+            # half a turn round (23.9 m off) matched 5 planes with 2 in conflict, and no rival was found.
+            n, against = int(hyps.n_matched[b]), int(np.count_nonzero(in_conflict(hyps.state[b])))
+            if n - against < p.min_uncontradicted_planes:
+                return _rejected(f"contradicted by the map: {n} planes matched less {against} in conflict with it or "
+                                 f"hidden behind it leaves {n - against}, under {p.min_uncontradicted_planes}",
+                                 counts, timings)
         cand_row = hyps.cand[b: b + 1]
         match_row, proj_row = hyps.match[b], hyps.proj[b]
         explained = float(hyps.explained[b])
