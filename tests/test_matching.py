@@ -891,8 +891,8 @@ def test_planes_in_conflict_with_the_map_count_against_scene_uniqueness():
     scene uniqueness accepts. Each panel of 0.49 m^2 hung 8 cm in front of the far wall, unknown to the map, is in
     conflict with that wall at the decision's offsets (too small for the area veto of ``max_conflict_area_m2``) and
     takes one plane off the five: with ``min_uncontradicted_planes`` 5 the pose is rejected with one panel, at 4 with
-    two, and with the test off (0) it stands with both, exactly. A sensor too noisy for the occlusion test gets the
-    test off too."""
+    two, and with the test off (0) or scene uniqueness off it stands with both, exactly. A sensor too noisy for the
+    occlusion test gets the test off too."""
     from reloc.config import Config
     from reloc.evaluation.synthetic import Rect, room
 
@@ -903,11 +903,14 @@ def test_planes_in_conflict_with_the_map_count_against_scene_uniqueness():
         extra = [Rect((5.92, 1.2 + 1.6 * k, 1.3), (-1, 0, 0), (0, 1, 0), 0.35, 0.35) for k in range(panels)]
         sub = view_planes(rects + extra, T)
         assert len(sub) == 5 + panels and np.sum(np.abs(sub.areas - 0.49) < 0.01) == panels
-        for least in (0, 4, 5):
-            r = Relocalizer(scene_planes(rects), MatchingParams(min_uncontradicted_planes=least)).confirm(sub, T)
+        for least in (0, 4, 5, "VR-NS"):
+            params = (MatchingParams(scene_uniqueness=False) if least == "VR-NS"
+                      else MatchingParams(min_uncontradicted_planes=least))
+            r = Relocalizer(scene_planes(rects), params).confirm(sub, T)
             if r.relocalized:
                 assert pose_error(r.T_map_cam, T)[0] < 1e-6
             reasons[panels, least] = r.reason or "relocalized"
+    # Without scene uniqueness (the paper's VR-NS) its net count goes too.
     assert {k for k, v in reasons.items() if v != "relocalized"} == {(1, 5), (2, 5), (2, 4)}
     assert reasons[1, 5] == ("contradicted by the map: 5 planes matched less 1 in conflict with it or hidden behind "
                              "it leaves 4, under 5")

@@ -697,7 +697,7 @@ class Relocalizer:
         p = self.params
         t0 = time.perf_counter()
         b = decision.best
-        if p.min_uncontradicted_planes > 0:
+        if p.scene_uniqueness and p.min_uncontradicted_planes > 0:  # VR-NS turns it off with scene uniqueness
             # Scene uniqueness net of the map's contradictions, at the decision's offsets: a corridor view answered
             # half a turn round (23.9 m off) matched 5 planes with 2 in conflict, and no rival was found.
             n, against = int(hyps.n_matched[b]), int(np.count_nonzero(in_conflict(hyps.state[b])))
