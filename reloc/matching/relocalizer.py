@@ -698,8 +698,10 @@ class Relocalizer:
         t0 = time.perf_counter()
         b = decision.best
         if p.scene_uniqueness and p.min_uncontradicted_planes > 0:  # VR-NS turns it off with scene uniqueness
-            # Scene uniqueness net of the map's contradictions, at the decision's offsets: a corridor view answered
-            # half a turn round (23.9 m off) matched 5 planes with 2 in conflict, and no rival was found.
+            # Scene uniqueness net of the map's contradictions: a corridor view answered half a turn round (23.9 m
+            # off) matched 5 planes with 2 in conflict, and no rival was found. Decided over refined poses, the
+            # matches are counted at the final tolerances and the conflicts at the decision's offsets, so a plane
+            # matched only within the former and in conflict at the latter counts for nothing.
             n, against = int(hyps.n_matched[b]), int(np.count_nonzero(in_conflict(hyps.state[b])))
             if n - against < p.min_uncontradicted_planes:
                 return _rejected(f"contradicted by the map: {n} planes matched less {against} in conflict with it or "
