@@ -442,12 +442,11 @@ def test_reloc_run_replays_a_recording_against_a_map_file(tmp_path):
 
     from click.testing import CliRunner
 
+    from drivers.readers import noise_law_entry
     from reloc.cli import cli
     from reloc.mapping import PlaneMap, save_map
     from sim.ground_truth import scene_planes
     from sim.writer import write_sequence
-
-    from drivers.readers import noise_law_entry
 
     src = SimSource("living_room", n_frames=12, camera="oak-d", rate="fast")
     # With the camera's noise law, as `reloc sim` writes it: the run extracts and matches for a stereo camera.
