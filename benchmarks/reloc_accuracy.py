@@ -119,6 +119,9 @@ def main() -> int:
                          "direction) grows back in time, half a window at a time, up to this many frames (default "
                          "3 x --window; 0 = windows do not grow, the suite before 2026-11-28).")
     ap.add_argument("--map-frames", type=int, default=3000, help="Frames per mapping trajectory.")
+    ap.add_argument("--map-tour", choices=("random", "rooms"), default="random",
+                    help="Where the mapping trajectories go: shortest paths to random places (the suite's), or "
+                         "every room entered in turn, as a mapping run that leaves no room out.")
     ap.add_argument("--scenes", default=None, help="Scenes (comma separated; default: the six of the suite).")
     ap.add_argument("--no-oracle", action="store_true", help="Skip the ground-truth plane source.")
     ap.add_argument("--ablation", action="store_true", help="Also Table 3 (kinect noise, extraction).")
@@ -188,7 +191,7 @@ def main() -> int:
         """The suite of reloc eval (reloc.evaluation.suite.suite_spec), so that its tables reproduce these."""
         return suite_spec(noise, scenes=scenes, queries=args.queries, negatives=args.negatives, window=args.window,
                           max_window=args.max_window, map_frames=args.map_frames, query_seed=args.query_seed,
-                          map_seed=args.map_seed, **kw)
+                          map_seed=args.map_seed, map_tour=args.map_tour, **kw)
 
     # The overrides, as JSON reads them back, go with a saved suite for the record (every parameter is compared).
     overrides = json.loads(json.dumps({"set": set_overrides, "mapping_set": mapping_overrides}))

@@ -142,6 +142,41 @@ class Roadmap:
             path.append(prev[path[-1]])
         return path[::-1]
 
+    def room_tour(self, rng: np.random.Generator, min_length_m: float) -> np.ndarray:
+        """(K, 2) waypoints of a tour that enters every room: in each round, the nearest room not yet entered
+        (by its centre) next, a random node of it the goal of a shortest path; round after round until the tour is
+        at least ``min_length_m`` long. What a mapping run does that must leave no room out; a room without a node
+        in the largest component (none of the scenes here) is left out."""
+        comp = self.largest_component()
+        if len(comp) < 2:
+            raise ValueError(f"scene {self.scene.name!r}: free space too small for a trajectory")
+        xy = self.nodes[comp]
+        inside = [comp[(xy[:, 0] > x0) & (xy[:, 0] < x1) & (xy[:, 1] > y0) & (xy[:, 1] < y1)]
+                  for x0, y0, x1, y1, _ in self.scene.rooms]
+        keep = [k for k, nodes in enumerate(inside) if len(nodes)]
+        inside = [inside[k] for k in keep]
+        centres = np.array([[(r[0] + r[2]) / 2, (r[1] + r[3]) / 2] for r in self.scene.rooms[keep]])
+        cur = int(rng.choice(comp))
+        pts = [self.nodes[cur]]
+        length = 0.0
+        while length < min_length_m:
+            left = list(range(len(inside)))
+            goals = []
+            while left:
+                r = left.pop(int(np.argmin(np.linalg.norm(centres[left] - self.nodes[goals[-1] if goals else cur],
+                                                           axis=1))))
+                goals.append(int(rng.choice(inside[r])))
+            if all(g == cur for g in goals):  # one room of one node: anywhere else, then back
+                goals.insert(0, int(rng.choice(comp[comp != cur])))
+            for goal in goals:
+                if goal == cur or length >= min_length_m:
+                    continue
+                for j in self.shortest_path(cur, goal)[1:]:
+                    length += float(np.linalg.norm(self.nodes[j] - pts[-1]))
+                    pts.append(self.nodes[j])
+                cur = goal
+        return np.array(pts)
+
     def random_walk(self, rng: np.random.Generator, min_length_m: float) -> np.ndarray:
         """(K, 2) waypoints of a tour through the largest component: shortest paths to random goals, chained,
         until the tour is at least ``min_length_m`` long."""

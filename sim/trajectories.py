@@ -23,9 +23,12 @@ from sim.free_space import Roadmap, is_free, sample_free
 from sim.scenes import Scene
 
 __all__ = ["camera_rotation", "pose_from", "robot", "handheld", "random_views", "make_trajectory", "TRAJECTORY_NAMES",
-           "gravity_in_camera"]
+           "TOURS", "gravity_in_camera"]
 
 TRAJECTORY_NAMES = ("robot", "handheld", "random")
+# Where robot and hand-held trajectories go: shortest paths to random places ("random"; a short one may never enter
+# some room), or every room entered in turn ("rooms", as a mapping run that must leave no room out).
+TOURS = ("random", "rooms")
 _STREAM = {"robot": 11, "handheld": 12, "random": 13}
 
 
@@ -82,17 +85,18 @@ def _wrap(a):
 
 def robot(scene: Scene, n_frames: int, seed: int = 0, *, height_m: float = 0.35, speed_mps: float = 0.35,
           turn_rate_deg_s: float = 60.0, max_pitch_deg: float = 2.0, max_roll_deg: float = 1.5,
-          pitch_offset_deg: float = 0.0, rate_hz: float = 30.0, clearance_m: float = 0.35) -> np.ndarray:
+          pitch_offset_deg: float = 0.0, rate_hz: float = 30.0, clearance_m: float = 0.35,
+          tour: str = "random") -> np.ndarray:
     """(N, 4, 4) ``T_world_cam`` of a ground robot driving a tour of the scene at ``rate_hz`` frames per second.
 
     The camera stays at ``height_m``; pitch (about ``pitch_offset_deg``) and roll wander smoothly within the given
-    bounds. The robot drives straight at ``speed_mps`` and turns on the spot at ``turn_rate_deg_s``.
+    bounds. The robot drives straight at ``speed_mps`` and turns on the spot at ``turn_rate_deg_s``. ``tour``:
+    "random" (shortest paths to random places) or "rooms" (every room entered in turn, see :data:`TOURS`).
     """
     n = _check_n(n_frames)
     rng = _rng(seed, "robot")
     dt = 1.0 / rate_hz
-    roadmap = Roadmap(scene, rng, clearance_m)
-    waypoints = roadmap.random_walk(rng, n * dt * speed_mps + 1.0)
+    waypoints = _waypoints(Roadmap(scene, rng, clearance_m), rng, n * dt * speed_mps + 1.0, tour)
     step = speed_mps * dt
     turn = math.radians(turn_rate_deg_s) * dt
     xs, ys, yaws = [], [], []
@@ -127,6 +131,14 @@ def robot(scene: Scene, n_frames: int, seed: int = 0, *, height_m: float = 0.35,
     return np.stack([pose_from(xs[i], ys[i], height_m, yaws[i], pitch[i], roll[i]) for i in range(n)])
 
 
+def _waypoints(roadmap: Roadmap, rng: np.random.Generator, length_m: float, tour: str) -> np.ndarray:
+    if tour == "random":
+        return roadmap.random_walk(rng, length_m)
+    if tour == "rooms":
+        return roadmap.room_tour(rng, length_m)
+    raise ValueError(f"tour: expected one of {', '.join(TOURS)}, got {tour!r}")
+
+
 def _moving_average(a: np.ndarray, window: int) -> np.ndarray:
     if window <= 1:
         return a
@@ -140,17 +152,18 @@ def _moving_average(a: np.ndarray, window: int) -> np.ndarray:
 
 def handheld(scene: Scene, n_frames: int, seed: int = 0, *, height_m: float = 1.4, speed_mps: float = 0.6,
              look_around_deg: float = 35.0, mean_pitch_deg: float = -12.0, max_pitch_deg: float = 12.0,
-             max_roll_deg: float = 5.0, rate_hz: float = 30.0, clearance_m: float = 0.4) -> np.ndarray:
+             max_roll_deg: float = 5.0, rate_hz: float = 30.0, clearance_m: float = 0.4,
+             tour: str = "random") -> np.ndarray:
     """(N, 4, 4) ``T_world_cam`` of a hand-held camera carried on a walk through the scene.
 
-    The walk follows roadmap waypoints, smoothed; the view turns with the walking direction plus a slow look-around
-    of up to ``look_around_deg``; pitch wanders about ``mean_pitch_deg``; steps make the camera bob by ~2 cm.
+    The walk follows roadmap waypoints (``tour`` as for :func:`robot`), smoothed; the view turns with the walking
+    direction plus a slow look-around of up to ``look_around_deg``; pitch wanders about ``mean_pitch_deg``; steps
+    make the camera bob by ~2 cm.
     """
     n = _check_n(n_frames)
     rng = _rng(seed, "handheld")
     dt = 1.0 / rate_hz
-    roadmap = Roadmap(scene, rng, clearance_m)
-    waypoints = roadmap.random_walk(rng, n * dt * speed_mps + 2.0)
+    waypoints = _waypoints(Roadmap(scene, rng, clearance_m), rng, n * dt * speed_mps + 2.0, tour)
     seg = np.linalg.norm(np.diff(waypoints, axis=0), axis=1)
     s = np.concatenate([[0.0], np.cumsum(seg)])
     keep = np.concatenate([[True], seg > 1e-9])

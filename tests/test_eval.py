@@ -297,3 +297,14 @@ def test_the_demo_runs_with_a_stereo_camera_and_decides_at_its_noise(monkeypatch
     assert params.decision_conflict_m == pytest.approx(CONFLICT_SIGMAS * sigma)
     assert params.decision_conflict_m > MatchingParams().decision_conflict_m and not params.occlusion
     assert sum(result["counts"].values()) == 3 and result["counts"]["FP"] == 0
+
+
+def test_the_suites_map_tour_is_named_and_checked():
+    """``map_tour`` goes from suite_spec into the spec (and so into a saved suite's record); another name is refused
+    with the names it takes."""
+    from reloc.evaluation.suite import EvalSpec, suite_spec
+
+    assert suite_spec("kinect").map_tour == "random"
+    assert suite_spec("stereo", map_tour="rooms").map_tour == "rooms"
+    with pytest.raises(ValueError, match="map_tour: expected 'random' or 'rooms', got 'everywhere'"):
+        EvalSpec(map_tour="everywhere")

@@ -159,3 +159,26 @@ def test_people_walk_and_occlude():
     r, c = 30, 40
     assert l0[r, c] > 0 and d0[r, c] > 2.0
     assert l1[r, c] == 0 and abs(d1[r, c] - 1.25) < 0.01  # the front of the cylinder: 2.5 - 0.25 - 1.0
+
+
+def test_a_room_tour_enters_every_room_where_a_random_walk_may_not():
+    """A mapping run must leave no room out. With the suite's length (3,000 frames) and the seed of its first map's
+    hand-held walk, the walk to random places never enters two of the meeting-room scene's five rooms (corridor and
+    four rooms); the room tour spends frames in every one. Both stay in free space; a tour by another name is
+    refused by name."""
+    scene = make_scene("meeting_rooms")
+
+    def frames_per_room(T):
+        xy = T[:, :2, 3]
+        return [int(np.sum((xy[:, 0] > x0) & (xy[:, 0] < x1) & (xy[:, 1] > y0) & (xy[:, 1] < y1)))
+                for x0, y0, x1, y1, _ in scene.rooms]
+
+    walk = handheld(scene, 3000, seed=2)
+    tour = handheld(scene, 3000, seed=2, tour="rooms")
+    assert sorted(frames_per_room(walk))[:2] == [0, 0]
+    assert min(frames_per_room(tour)) > 0
+    assert is_free(scene, tour[:, :2, 3], 0.2).all()
+    drive = robot(scene, 600, seed=1, tour="rooms")
+    assert is_free(scene, drive[:, :2, 3], 0.3).all()
+    with pytest.raises(ValueError, match="tour: expected one of random, rooms, got 'everywhere'"):
+        robot(scene, 10, seed=1, tour="everywhere")

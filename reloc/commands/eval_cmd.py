@@ -20,6 +20,9 @@ import click
                    "grow; default 3 x --window, with --quick 0).")
 @click.option("--map-frames", type=click.IntRange(min=50), default=3000, show_default=True,
               help="Frames of each mapping trajectory (a robot tour and a hand-held walk).")
+@click.option("--map-tour", type=click.Choice(["random", "rooms"]), default="random", show_default=True,
+              help="Where the mapping trajectories go: shortest paths to random places, or every room entered in "
+                   "turn (a mapping run that leaves no room out).")
 @click.option("--noise", type=click.Choice(["none", "stereo", "kinect", "tof"]), default="kinect", show_default=True,
               help="Depth noise of the simulated camera: stereo is an OAK-D class camera at its 640 x 400, the "
                    "others a Kinect-like camera at 320 x 240 (160 x 120 with --quick), as in "
@@ -51,7 +54,7 @@ import click
               help="With --explain: the scene whose map the query is relocalized in (a negative, when not the "
                    "query's own).")
 @click.option("--quiet", is_flag=True, help="No progress bar.")
-def eval_cmd(scenes, source, queries, negatives, window, max_window, map_frames, noise, query_seed, map_seed,
+def eval_cmd(scenes, source, queries, negatives, window, max_window, map_frames, map_tour, noise, query_seed, map_seed,
              ablation, quick, config_path, json_path, save_prepared, prepared_dir, explain, explain_map, quiet):
     """Relocalization accuracy like the paper's Table 1 (per scene: TP, TN, FP, FN, P, R, median pose errors, time).
 
@@ -103,10 +106,11 @@ def eval_cmd(scenes, source, queries, negatives, window, max_window, map_frames,
             spec = replace(spec, scenes=names)
         if max_window is not None:
             spec = replace(spec, window_max_frames=max_window)
+        spec = replace(spec, map_tour=map_tour)
     else:
         # The suite of benchmarks/reloc_accuracy.py, whose figures docs/BENCHMARKS.md records.
         spec = suite_spec(noise, plane_source=source, scenes=names, queries=queries, negatives=negatives,
-                          window=window, max_window=max_window, map_frames=map_frames)
+                          window=window, max_window=max_window, map_frames=map_frames, map_tour=map_tour)
     seeds = {k: v for k, v in (("query_seed", query_seed), ("map_seed", map_seed)) if v is not None}
     spec = replace(spec, **seeds)
     extraction = None

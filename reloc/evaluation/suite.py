@@ -47,6 +47,7 @@ class EvalSpec:
     width: int = 160
     height: int = 120
     map_trajectories: tuple[tuple[str, int], ...] = (("robot", 3000), ("handheld", 3000))
+    map_tour: str = "random"  # where the mapping trajectories go: sim.trajectories.TOURS ("rooms": every room)
     map_seed: int = 1
     query_kinds: tuple[str, ...] = ("robot", "handheld")
     queries_per_kind: int = 10
@@ -61,6 +62,8 @@ class EvalSpec:
     def __post_init__(self) -> None:
         if self.plane_source not in ("oracle", "extraction"):
             raise ValueError(f"plane_source: expected 'oracle' or 'extraction', got {self.plane_source!r}")
+        if self.map_tour not in ("random", "rooms"):
+            raise ValueError(f"map_tour: expected 'random' or 'rooms', got {self.map_tour!r}")
         if self.window_frames < 1 or self.window_stride < 1:
             raise ValueError(f"window_frames, window_stride: expected >= 1, got {self.window_frames}, "
                              f"{self.window_stride}")
@@ -154,12 +157,13 @@ def build_scene_map(scene, spec: EvalSpec, source: Callable, mapping: MappingPar
     frames = []
     n_frames = 0
     for k, (kind, n) in enumerate(spec.map_trajectories):
-        poses = make_trajectory(kind, scene, n, spec.map_seed + k)
+        tour = {"tour": spec.map_tour} if kind in ("robot", "handheld") else {}
+        poses = make_trajectory(kind, scene, n, spec.map_seed + k, **tour)
         keep = select_keyframes(poses, mapping.keyframe_min_translation_m, mapping.keyframe_min_rotation_rad)
         frames += _frames(scene, poses[keep], spec, spec.map_seed * 7919 + k)
         n_frames += n
     meta = {"source": f"sim:{scene.name}", "plane_source": spec.plane_source,
-            "trajectories": [list(t) for t in spec.map_trajectories], "seed": spec.map_seed,
+            "trajectories": [list(t) for t in spec.map_trajectories], "tour": spec.map_tour, "seed": spec.map_seed,
             "trajectory_frames": n_frames}
     return build_map(frames, source, mapping, meta=meta)
 
@@ -377,17 +381,17 @@ def sensor_spec(spec, noise: str):
 def suite_spec(noise: str = "kinect", *, plane_source: str = "extraction", scenes: tuple[str, ...] = SCENES,
                queries: int = 10, negatives: int = 20, window: int = 40, max_window: int | None = None,
                map_frames: int = 3000, query_seed: int = EvalSpec.query_seed,
-               map_seed: int = EvalSpec.map_seed) -> EvalSpec:
+               map_seed: int = EvalSpec.map_seed, map_tour: str = EvalSpec.map_tour) -> EvalSpec:
     """The suite of ``reloc eval`` and ``benchmarks/reloc_accuracy.py`` (the figures of docs/BENCHMARKS.md), one
     function so that both run the same one: frames of 320 x 240 (for stereo noise the OAK-D's own 640 x 400, see
     :func:`sensor_spec`), ``queries`` positives per trajectory kind and scene, ``negatives`` per scene, windows of
     ``window`` frames grown up to ``max_window`` (default 3 x ``window``; 0: they do not grow), queries at least
-    three windows apart, two mapping trajectories of ``map_frames`` frames."""
+    three windows apart, two mapping trajectories of ``map_frames`` frames going where ``map_tour`` says."""
     spec = EvalSpec(scenes=tuple(scenes), plane_source=plane_source, width=320, height=240, queries_per_kind=queries,
                     negatives_per_scene=negatives, window_frames=window,
                     window_max_frames=3 * window if max_window is None else max_window,
                     query_spacing_frames=max(60, 3 * window + 30),
-                    map_trajectories=(("robot", map_frames), ("handheld", map_frames)),
+                    map_trajectories=(("robot", map_frames), ("handheld", map_frames)), map_tour=map_tour,
                     query_seed=query_seed, map_seed=map_seed)
     return sensor_spec(spec, noise)
 
