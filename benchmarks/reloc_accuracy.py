@@ -108,6 +108,7 @@ FLOATFMT = ["", "", "", "", "", "", ".2f", ".2f", "", ".2f", ".2f", ".3f", ".2f"
 
 def main() -> int:
     from reloc.evaluation.suite import EvalSpec
+    from sim.trajectories import TOURS
 
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--noise", default="kinect,tof,stereo", help="Noise models (comma separated).")
@@ -119,7 +120,7 @@ def main() -> int:
                          "direction) grows back in time, half a window at a time, up to this many frames (default "
                          "3 x --window; 0 = windows do not grow, the suite before 2026-11-28).")
     ap.add_argument("--map-frames", type=int, default=3000, help="Frames per mapping trajectory.")
-    ap.add_argument("--map-tour", choices=("random", "rooms"), default="random",
+    ap.add_argument("--map-tour", choices=TOURS, default=EvalSpec.map_tour,
                     help="Where the mapping trajectories go: shortest paths to random places (the suite's), or "
                          "every room entered in turn, as a mapping run that leaves no room out.")
     ap.add_argument("--scenes", default=None, help="Scenes (comma separated; default: the six of the suite).")

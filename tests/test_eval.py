@@ -306,5 +306,5 @@ def test_the_suites_map_tour_is_named_and_checked():
 
     assert suite_spec("kinect").map_tour == "random"
     assert suite_spec("stereo", map_tour="rooms").map_tour == "rooms"
-    with pytest.raises(ValueError, match="map_tour: expected 'random' or 'rooms', got 'everywhere'"):
+    with pytest.raises(ValueError, match="map_tour: expected one of random, rooms, got 'everywhere'"):
         EvalSpec(map_tour="everywhere")

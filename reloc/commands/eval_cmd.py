@@ -20,6 +20,7 @@ import click
                    "grow; default 3 x --window, with --quick 0).")
 @click.option("--map-frames", type=click.IntRange(min=50), default=3000, show_default=True,
               help="Frames of each mapping trajectory (a robot tour and a hand-held walk).")
+# The names of sim.trajectories.TOURS, written out: the CLI imports no simulator before a command runs.
 @click.option("--map-tour", type=click.Choice(["random", "rooms"]), default="random", show_default=True,
               help="Where the mapping trajectories go: shortest paths to random places, or every room entered in "
                    "turn (a mapping run that leaves no room out).")

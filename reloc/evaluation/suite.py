@@ -62,8 +62,10 @@ class EvalSpec:
     def __post_init__(self) -> None:
         if self.plane_source not in ("oracle", "extraction"):
             raise ValueError(f"plane_source: expected 'oracle' or 'extraction', got {self.plane_source!r}")
-        if self.map_tour not in ("random", "rooms"):
-            raise ValueError(f"map_tour: expected 'random' or 'rooms', got {self.map_tour!r}")
+        from sim.trajectories import TOURS
+
+        if self.map_tour not in TOURS:
+            raise ValueError(f"map_tour: expected one of {', '.join(TOURS)}, got {self.map_tour!r}")
         if self.window_frames < 1 or self.window_stride < 1:
             raise ValueError(f"window_frames, window_stride: expected >= 1, got {self.window_frames}, "
                              f"{self.window_stride}")
