@@ -35,10 +35,11 @@ from _common import print_table, results_name, write_results  # noqa: E402
 
 from reloc._numba import warm_up  # noqa: E402
 from reloc.evaluation.suite import (  # noqa: E402
-    SCENES, EvalSpec, build_scene_map, extraction_for_sensor, make_plane_source, suite_spec,
+    SCENES, SUITE_MAP_TOUR, EvalSpec, build_scene_map, extraction_for_sensor, make_plane_source, suite_spec,
 )
 from reloc.extraction import ExtractionParams  # noqa: E402
 from sim.scenes import make_scene  # noqa: E402
+from sim.trajectories import TOURS  # noqa: E402
 
 BANDS_M = (0.01, 0.03, 0.06)
 MATCH_ANGLE_RAD = np.radians(10.0)
@@ -92,9 +93,9 @@ def map_errors(plane_map, scene) -> dict:
             "mean_offset_m": weighted / matched if matched else float("nan"), "duplicates": duplicates}
 
 
-def _spec(noise: str, scenes: tuple[str, ...], map_frames: int, map_seed: int) -> EvalSpec:
+def _spec(noise: str, scenes: tuple[str, ...], map_frames: int, map_seed: int, map_tour: str) -> EvalSpec:
     # The suite's maps, as reloc_accuracy.py and reloc eval build them (its queries are not used here).
-    return suite_spec(noise, scenes=scenes, map_frames=map_frames, map_seed=map_seed)
+    return suite_spec(noise, scenes=scenes, map_frames=map_frames, map_seed=map_seed, map_tour=map_tour)
 
 
 def main() -> None:
@@ -103,6 +104,9 @@ def main() -> None:
     ap.add_argument("--scenes", default=",".join(SCENES), help="Scenes (comma separated).")
     ap.add_argument("--map-frames", type=int, default=3000, help="Frames per mapping trajectory.")
     ap.add_argument("--map-seed", type=int, default=EvalSpec.map_seed, help="Seed of the mapping trajectories.")
+    ap.add_argument("--map-tour", choices=TOURS, default=SUITE_MAP_TOUR,
+                    help="Where the mapping trajectories go: every room entered in turn (the suite's since "
+                         "2026-11-29) or shortest paths to random places (the suite's before).")
     ap.add_argument("--quick", action="store_true", help="Two scenes, 600 frames per trajectory (a smoke run).")
     ap.add_argument("--name", default=None, help="Result file stem (default map_accuracy, map_accuracy_quick).")
     args = ap.parse_args()
@@ -128,7 +132,7 @@ def main() -> None:
     print(f"warm-up: {info['kernels']} kernels in {info['seconds']:.1f} s ({info['cold']} compiled cold)")
     rows, results = [], {}
     for noise in noises:
-        spec = _spec(noise, scenes, map_frames, args.map_seed)
+        spec = _spec(noise, scenes, map_frames, args.map_seed, args.map_tour)
         shipped = extraction_for_sensor(spec, ExtractionParams())
         for label, share in SETTINGS.items():
             params = replace(shipped, layer_min_shared=share)

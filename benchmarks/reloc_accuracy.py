@@ -107,7 +107,7 @@ FLOATFMT = ["", "", "", "", "", "", ".2f", ".2f", "", ".2f", ".2f", ".3f", ".2f"
 
 
 def main() -> int:
-    from reloc.evaluation.suite import EvalSpec
+    from reloc.evaluation.suite import SUITE_MAP_TOUR, EvalSpec
     from sim.trajectories import TOURS
 
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
@@ -120,9 +120,10 @@ def main() -> int:
                          "direction) grows back in time, half a window at a time, up to this many frames (default "
                          "3 x --window; 0 = windows do not grow, the suite before 2026-11-28).")
     ap.add_argument("--map-frames", type=int, default=3000, help="Frames per mapping trajectory.")
-    ap.add_argument("--map-tour", choices=TOURS, default=EvalSpec.map_tour,
-                    help="Where the mapping trajectories go: shortest paths to random places (the suite's), or "
-                         "every room entered in turn, as a mapping run that leaves no room out.")
+    ap.add_argument("--map-tour", choices=TOURS, default=SUITE_MAP_TOUR,
+                    help="Where the mapping trajectories go: every room entered in turn, as a mapping run that "
+                         "leaves no room out (the suite's since 2026-11-29), or shortest paths to random places "
+                         "(the suite's before, and of the suites saved then).")
     ap.add_argument("--scenes", default=None, help="Scenes (comma separated; default: the six of the suite).")
     ap.add_argument("--no-oracle", action="store_true", help="Skip the ground-truth plane source.")
     ap.add_argument("--ablation", action="store_true", help="Also Table 3 (kinect noise, extraction).")

@@ -300,11 +300,23 @@ def test_the_demo_runs_with_a_stereo_camera_and_decides_at_its_noise(monkeypatch
 
 
 def test_the_suites_map_tour_is_named_and_checked():
-    """``map_tour`` goes from suite_spec into the spec (and so into a saved suite's record); another name is refused
-    with the names it takes."""
+    """``map_tour`` goes from suite_spec into the spec (and so into a saved suite's record); the suite's maps come
+    from runs that enter every room, a record from before the field was a random walk's (and asking for the suite
+    of now on it names the difference); another name is refused with the names it takes."""
+    from dataclasses import asdict
+    from pathlib import Path
+    from types import SimpleNamespace
+
+    from reloc.evaluation.prepared_io import _spec_from, mismatch
     from reloc.evaluation.suite import EvalSpec, suite_spec
 
-    assert suite_spec("kinect").map_tour == "random"
-    assert suite_spec("stereo", map_tour="rooms").map_tour == "rooms"
+    assert suite_spec("kinect").map_tour == "rooms"
+    assert suite_spec("stereo", map_tour="random").map_tour == "random"
+    old = {k: v for k, v in json.loads(json.dumps(asdict(suite_spec("kinect")))).items() if k != "map_tour"}
+    saved = _spec_from(old, Path("suite.json"))
+    assert saved.map_tour == "random"
+    assert mismatch(SimpleNamespace(spec=saved), {"params": {}}, suite_spec("kinect"), {}) == [
+        "map_tour: saved 'random', asked 'rooms'"]
+    assert mismatch(SimpleNamespace(spec=saved), {"params": {}}, suite_spec("kinect", map_tour="random"), {}) == []
     with pytest.raises(ValueError, match="map_tour: expected one of random, rooms, got 'everywhere'"):
         EvalSpec(map_tour="everywhere")

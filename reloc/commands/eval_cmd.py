@@ -20,10 +20,12 @@ import click
                    "grow; default 3 x --window, with --quick 0).")
 @click.option("--map-frames", type=click.IntRange(min=50), default=3000, show_default=True,
               help="Frames of each mapping trajectory (a robot tour and a hand-held walk).")
-# The names of sim.trajectories.TOURS, written out: the CLI imports no simulator before a command runs.
-@click.option("--map-tour", type=click.Choice(["random", "rooms"]), default="random", show_default=True,
-              help="Where the mapping trajectories go: shortest paths to random places, or every room entered in "
-                   "turn (a mapping run that leaves no room out).")
+# The names of sim.trajectories.TOURS and the suite's SUITE_MAP_TOUR, written out: the CLI imports no simulator
+# before a command runs.
+@click.option("--map-tour", type=click.Choice(["random", "rooms"]), default="rooms", show_default=True,
+              help="Where the mapping trajectories go: every room entered in turn (a mapping run that leaves no "
+                   "room out; the suite's since 2026-11-29), or shortest paths to random places (the suite's "
+                   "before, and of the suites saved then).")
 @click.option("--noise", type=click.Choice(["none", "stereo", "kinect", "tof"]), default="kinect", show_default=True,
               help="Depth noise of the simulated camera: stereo is an OAK-D class camera at its 640 x 400, the "
                    "others a Kinect-like camera at 320 x 240 (160 x 120 with --quick), as in "
