@@ -318,5 +318,12 @@ def test_the_suites_map_tour_is_named_and_checked():
     assert mismatch(SimpleNamespace(spec=saved), {"params": {}}, suite_spec("kinect"), {}) == [
         "map_tour: saved 'random', asked 'rooms'"]
     assert mismatch(SimpleNamespace(spec=saved), {"params": {}}, suite_spec("kinect", map_tour="random"), {}) == []
+    # reloc eval writes the names and the suite's tour out (it imports no simulator before a command runs).
+    from reloc.commands.eval_cmd import eval_cmd
+    from reloc.evaluation.suite import SUITE_MAP_TOUR
+    from sim.trajectories import TOURS
+
+    option = next(p for p in eval_cmd.params if p.name == "map_tour")
+    assert option.default == SUITE_MAP_TOUR and tuple(option.type.choices) == TOURS
     with pytest.raises(ValueError, match="map_tour: expected one of random, rooms, got 'everywhere'"):
         EvalSpec(map_tour="everywhere")
