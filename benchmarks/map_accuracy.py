@@ -155,10 +155,12 @@ def main() -> None:
             rows.append([key, tot["planes"], tot["area_m2"], *share_of, mean * 1e3, tot["duplicates"],
                          tot["unmatched_area_m2"], seconds])
             print(f"{key}: {tot['planes']} planes, {seconds:.0f} s", flush=True)
-    print(f"\nmaps of {', '.join(scenes)} (map seed {args.map_seed}, {map_frames} frames per trajectory)")
+    print(f"\nmaps of {', '.join(scenes)} (map seed {args.map_seed}, tour {args.map_tour!r}, {map_frames} frames per "
+          "trajectory)")
     print_table(["sensor: setting", "planes", "area m^2", "<1cm %", "1-3cm %", "3-6cm %", ">=6cm %",
                  "mean mm", "dupl.", "no truth m^2", "build s"], rows, floatfmt=".1f")
     params = {"noise": noises, "scenes": scenes, "map_frames": map_frames, "map_seed": args.map_seed,
+              "map_tour": args.map_tour,
               "quick": args.quick, "settings": SETTINGS, "match_angle_deg": float(np.degrees(MATCH_ANGLE_RAD)),
               "bands_m": BANDS_M, "duplicate_min_area_m2": DUPLICATE_MIN_AREA_M2,
               "duplicate_reach_m": DUPLICATE_REACH_M, "duplicate_min_share": DUPLICATE_MIN_SHARE}
