@@ -231,6 +231,11 @@ class MappingConfig(_Section):
         "fuse_max_offset_m from the fused plane (a plane mostly on a surface and partly on one behind it passes the "
         "median test, not this one). 1 = off (before 2026-11-27).",
     )
+    fuse_check_local: bool = Field(
+        True, description="Association: the fused plane's own samples around the new plane also within "
+        "fuse_max_offset_m of the new plane (median), not only the new plane's samples near the fused plane (a door "
+        "in its niche joined a wall whose fused plane had turned a little). false = off (before 2026-11-30).",
+    )
     map_sample_spacing_m: float = Field(0.1, gt=0, description="Voxel size of each map plane's point sample.")
     min_observations: int = Field(
         3, ge=1, description="Map planes seen in fewer keyframes are dropped (mostly facets of curved clutter)."

@@ -461,12 +461,48 @@ def test_a_plane_touching_two_surfaces_does_not_make_them_one(check_bridged):
         assert cons["bent_planes"] == 1 and cons["bent_area_m2"] == pytest.approx(pm.planes.areas[0])
 
 
-@pytest.mark.parametrize("max_far_fraction", [0.25, 1.0])
-def test_a_plane_of_two_layers_does_not_join_a_surface(max_far_fraction):
+@pytest.mark.parametrize("check_local", [True, False])
+def test_a_door_in_its_niche_does_not_join_a_turned_wall(check_local):
+    # As in the tuned Kinect apartment map: a wall (x = 0, y 0..6) whose fused plane has turned 0.9 deg about the
+    # vertical through y = 1, so that where its door stands (y 4.1..5.0, 6 cm deep in its niche) the plane lies 1.1 to
+    # 6.3 cm behind the wall, on the door. The door's samples are within 0.4 cm of that plane in the median and touch
+    # the wall's: the one-way test lets it join. The wall's own samples around the door lie 6 cm from the door's plane.
+    from reloc.evaluation.synthetic import Rect, planes_from_points
+
+    gravity = np.array([0.0, 0.0, -1.0])
+    theta = math.radians(0.9)
+    wall_pts = Rect((0.0, 3.0, 1.25), (1, 0, 0), (0, 1, 0), 3.0, 1.25).grid(0.05)
+    wall_pts = wall_pts[~((wall_pts[:, 1] > 4.1) & (wall_pts[:, 1] < 5.0) & (wall_pts[:, 2] < 2.0))]
+    wall = planes_from_points([wall_pts], np.array([[math.cos(theta), math.sin(theta), 0.0]]),
+                              np.array([-math.sin(theta)]), spacing=0.05, frame="map", gravity=gravity)
+    door = _one_plane(Rect((-0.06, 4.55, 1.0), (1, 0, 0), (0, 1, 0), 0.45, 1.0))
+    dist = np.abs(door.sample_points @ wall.normals[0] + wall.offsets[0])
+    assert np.median(dist) < 0.005 and dist.max() < 0.012  # the door passes the test against the wall's plane
+    builder = MapBuilder(MappingParams(fuse_check_local=check_local))
+    for ps in (wall, wall, wall, door, door, door):
+        builder.add(ps, np.eye(4))
+    pm = builder.finish()
+    if check_local:
+        # Two planes, each seen three times: the door where it stands (x = -0.06) and the wall as it was fused.
+        assert len(pm) == 2 and list(pm.observations) == [3, 3]
+        i = int(np.argmax(pm.planes.areas))
+        assert pm.planes.normals[i] @ wall.normals[0] == pytest.approx(1.0, abs=1e-9)
+        assert pm.planes.offsets[i] == pytest.approx(wall.offsets[0], abs=1e-9)
+        assert pm.planes.offsets[1 - i] == pytest.approx(0.06, abs=1e-6)
+        assert pm.planes.normals[1 - i] @ np.array([1.0, 0, 0]) == pytest.approx(1.0, abs=1e-9)
+    else:
+        # One plane of six views, fused between the two: the door's samples within 1.1 cm of it, the wall's turned on.
+        assert len(pm) == 1 and pm.observations[0] == 6
+        assert pm.planes.areas[0] > 14.0
+
+
+@pytest.mark.parametrize("max_far_fraction, check_local", [(0.25, True), (0.25, False), (1.0, True), (1.0, False)])
+def test_a_plane_of_two_layers_does_not_join_a_surface(max_far_fraction, check_local):
     # A far stereo view's plane mostly on a TV's face and partly on the wall 22 cm behind it (37.5 % of its samples),
     # fitted between the two (x = 0.1375): its samples' median offset from the face's map plane is 0, so only the share
     # of far samples tells it is not the face. (The test is one-way, the new plane's samples against the map plane: a
-    # two-layer plane already in the map, fitted on one of its layers, still takes in a plane on that layer.)
+    # two-layer plane already in the map, fitted on one of its layers, still takes in a plane on that layer.) The
+    # local test, the face's own samples against the new plane (8 cm off it), tells it as well.
     from reloc.evaluation.synthetic import Rect, planes_from_points
 
     face = _one_plane(Rect((0.22, 2.75, 1.025), (1, 0, 0), (0, 1, 0), 0.7, 0.325))  # y 2.05..3.45
@@ -476,12 +512,12 @@ def test_a_plane_of_two_layers_does_not_join_a_surface(max_far_fraction):
                                spacing=0.05, frame="map", gravity=np.array([0.0, 0.0, -1.0]))
     far = np.abs(mixed.sample_points[:, 0] - 0.22) > 0.06
     assert far.mean() == pytest.approx(0.375, abs=0.03)
-    builder = MapBuilder(MappingParams(fuse_max_far_fraction=max_far_fraction))
+    builder = MapBuilder(MappingParams(fuse_max_far_fraction=max_far_fraction, fuse_check_local=check_local))
     for ps in (face, face, face, mixed, mixed, mixed):
         builder.add(ps, np.eye(4))
     pm = builder.finish()
     off = [np.abs(pm.planes.samples_of(i) @ pm.planes.normals[i] + pm.planes.offsets[i]).max() for i in range(len(pm))]
-    if max_far_fraction < 1:
+    if max_far_fraction < 1 or check_local:
         # The face alone, with its own samples (within 1 mm). The two-layer plane does not even fuse with itself (its
         # samples lie 8-14 cm from its own plane), so seen once each time it is dropped as the map drops such planes.
         assert len(pm) == 1 and pm.observations[0] == 3 and off[0] < 1e-3

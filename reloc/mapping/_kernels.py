@@ -80,6 +80,24 @@ def count_touching(keys_q, keys_m, offsets):
 
 
 @njit
+def mark_touching(keys_q, keys_m, offsets, out):
+    """Mark in ``out`` (bool, like ``keys_q``) the voxel keys of ``keys_q`` with a key of the sorted array ``keys_m``
+    among their neighbours (the keys :func:`count_touching` counts); returns how many are marked."""
+    n = 0
+    nm = keys_m.shape[0]
+    for i in range(keys_q.shape[0]):
+        out[i] = False
+        for o in range(offsets.shape[0]):
+            key = keys_q[i] + offsets[o]
+            at = _lower_bound(keys_m, 0, nm, key)
+            if at < nm and keys_m[at] == key:
+                out[i] = True
+                n += 1
+                break
+    return n
+
+
+@njit
 def voxel_sums(keys, points, order, keys_out, sums_out, counts_out):
     """Per distinct key of ``keys`` (N,): the sum of its ``points`` (N, 3) and their number, in increasing key order.
 
@@ -150,5 +168,6 @@ def _warmup() -> None:
     co = np.empty(3)
     n = voxel_sums(keys, pts, np.argsort(keys, kind="stable"), ko, so, co)
     count_touching(ko[:n], ko[:n], np.zeros(1, np.int64))
+    mark_touching(ko[:n], ko[:n], np.zeros(1, np.int64), np.empty(n, np.bool_))
     k2 = np.empty(4, np.int64)
     merge_voxel_sums(ko[:n], so[:n], co[:n], ko[:n], so[:n], co[:n], k2, np.empty((4, 3)), np.empty(4))

@@ -54,6 +54,7 @@ class MappingParams:
     fuse_min_overlap: float = 0.0
     fuse_check_bridged: bool = True
     fuse_max_far_fraction: float = 0.25
+    fuse_check_local: bool = True
     map_sample_spacing_m: float = 0.1
     min_observations: int = 3
     submap_window_frames: int = 1
@@ -110,7 +111,8 @@ class MappingParams:
     @property
     def fusion(self) -> FusionParams:
         return FusionParams(self.fuse_max_angle_rad, self.fuse_max_offset_m, self.fuse_min_overlap,
-                            self.map_sample_spacing_m, self.fuse_check_bridged, self.fuse_max_far_fraction)
+                            self.map_sample_spacing_m, self.fuse_check_bridged, self.fuse_max_far_fraction,
+                            self.fuse_check_local)
 
     @classmethod
     def from_config(cls, cfg) -> "MappingParams":
@@ -123,6 +125,7 @@ class MappingParams:
             fuse_min_overlap=m.fuse_min_overlap,
             fuse_check_bridged=m.fuse_check_bridged,
             fuse_max_far_fraction=m.fuse_max_far_fraction,
+            fuse_check_local=m.fuse_check_local,
             map_sample_spacing_m=m.map_sample_spacing_m,
             min_observations=m.min_observations,
             submap_window_frames=m.submap_window_frames,

@@ -4,7 +4,10 @@ Planes (already in one common frame) are associated with the planes accumulated 
 within ``max_angle_rad``, the new plane's samples lie within ``max_offset_m`` of the old plane (median) with at most
 ``max_far_fraction`` of them beyond twice that, and the two touch:
 at least ``min_overlap`` of the new plane's sample voxels have a voxel of the old plane among their 26 neighbours
-(0 means one is enough). Associated planes are fused by their information: each input plane's (n, d) with its
+(0 means one is enough). With ``check_local`` the old plane's own samples around the new plane must also lie
+within ``max_offset_m`` of the new plane (median): the test against the old plane alone let a door 6 cm deep in its
+niche join the wall around it, once that wall's fused plane had turned a little, and each join turned it further.
+Associated planes are fused by their information: each input plane's (n, d) with its
 covariance (the robust, noise-weighted fit of extraction) contributes ``I_k = C_k^+``; the fused plane minimizes
 ``sum (x - x_k)^T I_k (x - x_k)`` on the unit-normal manifold. The sufficient statistics (count, sum of points,
 sum of outer products) are fused too: they give the centroid, and the plane itself for inputs without a usable
@@ -46,6 +49,7 @@ class FusionParams:
     spacing_m: float = 0.1
     check_bridged: bool = True
     max_far_fraction: float = 0.25
+    check_local: bool = True
 
     def __post_init__(self) -> None:
         if not (0 < self.max_angle_rad < math.pi / 2):
@@ -248,7 +252,21 @@ class PlaneAccumulator:
         self.alive.append(True)
         self._alive_arr[m] = True
 
-    def _associate(self, n: np.ndarray, pts: np.ndarray, keys_q: np.ndarray) -> list[int]:
+    def _local_fit(self, m: int, keys_q: np.ndarray, n: np.ndarray, d: float) -> bool:
+        """Whether plane ``m``'s own samples where the new plane ``(n, d)`` lies (its voxels among the 26 neighbours
+        of ``keys_q``) are within ``max_offset_m`` of the new plane in the median. The median test of
+        :meth:`_associate` measures the new plane against plane ``m``'s fused plane only: once that plane has turned
+        a little, a door in its niche passes it, and each such join turns it further."""
+        from reloc.mapping import _kernels as K
+
+        km = self.keys[m]
+        near = np.empty(len(km), np.bool_)
+        if K.mark_touching(km, keys_q, _NEIGHBOUR_OFFSETS, near) == 0:
+            return False
+        pts = self.vsum[m][near] / self.vcnt[m][near][:, None]
+        return _median(np.abs(pts @ n + d)) <= self.params.max_offset_m
+
+    def _associate(self, n: np.ndarray, d: float, pts: np.ndarray, keys_q: np.ndarray) -> list[int]:
         p = self.params
         cos_max = math.cos(p.max_angle_rad)
         out: list[int] = []
@@ -270,9 +288,12 @@ class PlaneAccumulator:
             if p.max_far_fraction < 1 and np.count_nonzero(dist > 2 * p.max_offset_m) > p.max_far_fraction * len(dist):
                 continue
             frac = self._touching(keys_q, m)
-            if frac > 0 and frac >= p.min_overlap:
-                out.append(m)
-                offs.append(off)
+            if not (frac > 0 and frac >= p.min_overlap):
+                continue
+            if p.check_local and not self._local_fit(m, keys_q, n, d):
+                continue
+            out.append(m)
+            offs.append(off)
         if p.check_bridged and len(out) > 1:
             # The plane the new one fits best first: it takes the new one whether or not the others join it.
             order = sorted(range(len(out)), key=lambda i: (offs[i], i))
@@ -362,7 +383,7 @@ class PlaneAccumulator:
             uk, vs, vc = np.empty(len(keys_q), np.int64), np.empty((len(keys_q), 3)), np.empty(len(keys_q))
             k = K.voxel_sums(keys_q, pts, np.argsort(keys_q, kind="stable"), uk, vs, vc)
             uk, vs, vc = uk[:k], vs[:k], vc[:k]
-            hits = self._associate(n, pts, uk)
+            hits = self._associate(n, float(planes.offsets[q]), pts, uk)
             # A new entry, then merged into the first associated plane (and every other associated plane into it).
             self._append_row(n.copy())
             self.offsets.append(float(planes.offsets[q]))
@@ -398,7 +419,7 @@ class PlaneAccumulator:
                     continue
                 pts = self.vsum[m] / self.vcnt[m][:, None]
                 self._set_alive(m, False)  # do not associate with itself
-                hits = self._associate(self.normals[m], pts, self.keys[m])
+                hits = self._associate(self.normals[m], self.offsets[m], pts, self.keys[m])
                 self._set_alive(m, True)
                 if hits:
                     dst = hits[0]
