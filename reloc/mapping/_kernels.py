@@ -80,20 +80,25 @@ def count_touching(keys_q, keys_m, offsets):
 
 
 @njit
-def mark_touching(keys_q, keys_m, offsets, out):
-    """Mark in ``out`` (bool, like ``keys_q``) the voxel keys of ``keys_q`` with a key of the sorted array ``keys_m``
-    among their neighbours (the keys :func:`count_touching` counts); returns how many are marked."""
-    n = 0
+def touching_both_ways(keys_q, keys_m, offsets, near_m):
+    """How many of the voxel keys ``keys_q`` have a key of the sorted array ``keys_m`` among their neighbours (as
+    :func:`count_touching`), and, in ``near_m`` (bool, like ``keys_m``, cleared first), which keys of ``keys_m`` are
+    neighbours of a key of ``keys_q``. One binary search per key of ``keys_q`` and offset: ``keys_q`` is the new
+    plane's, usually far smaller than the map plane's."""
     nm = keys_m.shape[0]
+    for j in range(nm):
+        near_m[j] = False
+    n = 0
     for i in range(keys_q.shape[0]):
-        out[i] = False
+        hit = False
         for o in range(offsets.shape[0]):
             key = keys_q[i] + offsets[o]
             at = _lower_bound(keys_m, 0, nm, key)
             if at < nm and keys_m[at] == key:
-                out[i] = True
-                n += 1
-                break
+                near_m[at] = True
+                hit = True
+        if hit:
+            n += 1
     return n
 
 
@@ -168,6 +173,6 @@ def _warmup() -> None:
     co = np.empty(3)
     n = voxel_sums(keys, pts, np.argsort(keys, kind="stable"), ko, so, co)
     count_touching(ko[:n], ko[:n], np.zeros(1, np.int64))
-    mark_touching(ko[:n], ko[:n], np.zeros(1, np.int64), np.empty(n, np.bool_))
+    touching_both_ways(ko[:n], ko[:n], np.zeros(1, np.int64), np.empty(n, np.bool_))
     k2 = np.empty(4, np.int64)
     merge_voxel_sums(ko[:n], so[:n], co[:n], ko[:n], so[:n], co[:n], k2, np.empty((4, 3)), np.empty(4))

@@ -252,19 +252,24 @@ class PlaneAccumulator:
         self.alive.append(True)
         self._alive_arr[m] = True
 
-    def _local_fit(self, m: int, keys_q: np.ndarray, n: np.ndarray, d: float) -> bool:
-        """Whether plane ``m``'s own samples where the new plane ``(n, d)`` lies (its voxels among the 26 neighbours
-        of ``keys_q``) are within ``max_offset_m`` of the new plane in the median. The median test of
-        :meth:`_associate` measures the new plane against plane ``m``'s fused plane only: once that plane has turned
-        a little, a door in its niche passes it, and each such join turns it further."""
+    def _touching_local(self, keys_q: np.ndarray, m: int, n: np.ndarray, d: float) -> float:
+        """:meth:`_touching`, and 0 unless plane ``m``'s own samples where the new plane ``(n, d)`` lies (its voxels
+        among the 26 neighbours of ``keys_q``) are within ``max_offset_m`` of the new plane in the median. The median
+        test of :meth:`_associate` measures the new plane against plane ``m``'s fused plane only: once that plane has
+        turned a little, a door in its niche passes it, and each such join turns it further."""
         from reloc.mapping import _kernels as K
 
         km = self.keys[m]
+        if len(keys_q) == 0 or len(km) == 0:
+            return 0.0
         near = np.empty(len(km), np.bool_)
-        if K.mark_touching(km, keys_q, _NEIGHBOUR_OFFSETS, near) == 0:
-            return False
+        hits = K.touching_both_ways(keys_q, km, _NEIGHBOUR_OFFSETS, near)
+        if hits == 0:
+            return 0.0
         pts = self.vsum[m][near] / self.vcnt[m][near][:, None]
-        return _median(np.abs(pts @ n + d)) <= self.params.max_offset_m
+        if _median(np.abs(pts @ n + d)) > self.params.max_offset_m:
+            return 0.0
+        return hits / len(keys_q)
 
     def _associate(self, n: np.ndarray, d: float, pts: np.ndarray, keys_q: np.ndarray) -> list[int]:
         p = self.params
@@ -287,13 +292,10 @@ class PlaneAccumulator:
             # A plane mostly on this surface and partly on one behind it passes the median, not this.
             if p.max_far_fraction < 1 and np.count_nonzero(dist > 2 * p.max_offset_m) > p.max_far_fraction * len(dist):
                 continue
-            frac = self._touching(keys_q, m)
-            if not (frac > 0 and frac >= p.min_overlap):
-                continue
-            if p.check_local and not self._local_fit(m, keys_q, n, d):
-                continue
-            out.append(m)
-            offs.append(off)
+            frac = self._touching_local(keys_q, m, n, d) if p.check_local else self._touching(keys_q, m)
+            if frac > 0 and frac >= p.min_overlap:
+                out.append(m)
+                offs.append(off)
         if p.check_bridged and len(out) > 1:
             # The plane the new one fits best first: it takes the new one whether or not the others join it.
             order = sorted(range(len(out)), key=lambda i: (offs[i], i))
