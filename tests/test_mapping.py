@@ -348,6 +348,30 @@ def test_touching_count_matches_a_search_of_every_neighbour():
     assert K.count_touching(far, km, _NEIGHBOUR_OFFSETS) == 0
 
 
+def test_touching_both_ways_matches_a_search_of_every_neighbour():
+    # The galloping search of the local test: which new voxels touch the map plane (as count_touching counts them) and
+    # which map voxels are neighbours of a new one, against numpy's membership test, for planes of very unequal sizes.
+    from reloc.mapping import _kernels as K
+    from reloc.mapping.fusion import _NEIGHBOUR_OFFSETS, _neighbours
+
+    rng = np.random.default_rng(3)
+    touched = []
+    for nq, nm, span in ((1, 1, 6), (50, 80, 6), (300, 20, 6), (20, 2000, 12), (400, 400, 4), (1, 500, 2)):
+        kq = np.unique(_random_keys(rng, nq, span=span))
+        km = np.unique(_random_keys(rng, nm, span=span))
+        around = _neighbours(kq)
+        hit_q, near_m = np.ones(len(kq), np.bool_), np.ones(len(km), np.bool_)  # cleared by the kernel
+        n = K.touching_both_ways(kq, km, _NEIGHBOUR_OFFSETS, hit_q, near_m)
+        assert n == K.count_touching(kq, km, _NEIGHBOUR_OFFSETS) == hit_q.sum()
+        touched.append(n)
+        np.testing.assert_array_equal(hit_q, np.isin(around, km).any(axis=1))
+        np.testing.assert_array_equal(near_m, np.isin(km, around.ravel()))
+    assert sum(t > 0 for t in touched) >= 4  # most cases touch, so the marks are tested
+    far = np.unique(_random_keys(rng, 20, span=3)) + (np.int64(100) << 42)
+    assert K.touching_both_ways(far, km, _NEIGHBOUR_OFFSETS, np.empty(len(far), np.bool_), near_m) == 0
+    assert not near_m.any()
+
+
 def test_symmetric_pseudo_inverse_is_numpys_to_the_last_bit():
     from reloc.mapping.fusion import _pinv_symmetric
 

@@ -263,7 +263,7 @@ class PlaneAccumulator:
         if len(keys_q) == 0 or len(km) == 0:
             return 0.0
         near = np.empty(len(km), np.bool_)
-        hits = K.touching_both_ways(keys_q, km, _NEIGHBOUR_OFFSETS, near)
+        hits = K.touching_both_ways(keys_q, km, _NEIGHBOUR_OFFSETS, np.empty(len(keys_q), np.bool_), near)
         if hits == 0:
             return 0.0
         pts = self.vsum[m][near] / self.vcnt[m][near][:, None]
