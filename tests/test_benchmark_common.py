@@ -43,8 +43,9 @@ def test_the_benchmark_scripts_refuse_a_bad_name_before_measuring():
 
     root = Path(__file__).resolve().parents[1]
     for script in ("reloc_accuracy.py", "extraction_accuracy.py", "extraction_speed.py", "sim_speed.py",
-                   "map_accuracy.py"):
-        done = subprocess.run([sys.executable, str(root / "benchmarks" / script), "--name", "a/b"],
+                   "map_accuracy.py", "compare_accuracy.py"):
+        extra = ["x.json:y.json"] if script == "compare_accuracy.py" else []
+        done = subprocess.run([sys.executable, str(root / "benchmarks" / script), "--name", "a/b", *extra],
                               capture_output=True, text=True, timeout=120)
         assert done.returncode == 2 and "--name: expected a plain file stem" in done.stderr, (script, done.stderr)
     # The long runs name their results file with --out (a 9,000-frame soak once ran 5 minutes, then refused it).
@@ -275,3 +276,44 @@ def test_the_accuracy_benchmark_runs_the_suite_reloc_eval_saves(tmp_path):
         return o["query"], o["label"], o["status"], o["reason"]
 
     assert len(ours) == 2 and [key(o) for o in ours] == [key(o) for o in theirs]
+
+
+def test_two_accuracy_records_are_compared_view_by_view_in_their_own_maps(tmp_path, capsys, monkeypatch):
+    # A negative is named after its own scene's view, so the same query name comes up in two maps: the comparison
+    # keys each outcome by (map, query), or the negative would overwrite the positive.
+    import json
+
+    from compare_accuracy import main
+
+    def record(labels, bent):
+        outcomes = [{"scene": m, "query": q, "label": lab, "ambiguous": False, "reason": "why " + lab}
+                    for (m, q), lab in labels.items()]
+        total = {k: sum(lab == k for lab in labels.values()) for k in ("TP", "TN", "FP", "FN")}
+        src = {"total": total, "outcomes": outcomes, "prepare_s": 1.0, "map_planes": {"office": 10, "corridor": 5},
+               "map_consistency": {"office": {"bent_planes": bent, "bent_area_m2": 1.5 * bent},
+                                   "corridor": {"bent_planes": 1, "bent_area_m2": 0.5}}}
+        return {"git": {"commit": "c"}, "results": {"sources": {"extraction/kinect/ours": src}}}
+
+    before = {("office", "office/robot/1"): "TP", ("office", "office/robot/2"): "FN",
+              ("corridor", "office/robot/2"): "TN"}
+    after = dict(before)
+    after[("office", "office/robot/2")] = "TP"
+    after[("corridor", "office/robot/2")] = "FP"
+    a, b = tmp_path / "a.json", tmp_path / "b.json"
+    a.write_text(json.dumps(record(before, 3)))
+    b.write_text(json.dumps(record(after, 1)))
+    import _common
+
+    monkeypatch.setattr(_common, "RESULTS_DIR", tmp_path)
+    assert main(["--name", "cmp", f"{a}:{b}"]) == 0
+    res = json.loads((tmp_path / "cmp.json").read_text())["results"]
+    c = res["pairs"][0]["sources"]["extraction/kinect/ours"]
+    assert c["before"] == {"TP": 1, "TN": 1, "FP": 0, "FN": 1} and c["after"] == {"TP": 2, "TN": 0, "FP": 1, "FN": 0}
+    assert sorted((x["map"], x["query"], x["before"], x["after"]) for x in c["changed"]) == [
+        ("corridor", "office/robot/2", "TN", "FP"), ("office", "office/robot/2", "FN", "TP")]
+    assert c["bent_before"] == {"planes": 4, "area_m2": 5.0, "map_planes": 15} and c["bent_after"]["planes"] == 2
+    assert res["totals"]["extraction/kinect/ours"]["bent_planes"] == [4, 2]
+    assert "office/robot/2 in the map of corridor: TN -> FP" in capsys.readouterr().out
+    b.write_text(json.dumps(record({("office", "office/robot/1"): "TP"}, 1)))
+    with pytest.raises(SystemExit, match="do not hold the same queries"):
+        main(["--name", "cmp", f"{a}:{b}"])
