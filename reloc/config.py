@@ -232,9 +232,10 @@ class MappingConfig(_Section):
         "median test, not this one). 1 = off (before 2026-11-27).",
     )
     fuse_check_local: bool = Field(
-        True, description="Association: the fused plane's own samples around the new plane also within "
+        False, description="Association: the fused plane's own samples around the new plane also within "
         "fuse_max_offset_m of the new plane (median), not only the new plane's samples near the fused plane (a door "
-        "in its niche joined a wall whose fused plane had turned a little). false = off (before 2026-11-30).",
+        "in its niche joined a wall whose fused plane had turned a little). Off by default: on the suite's maps it "
+        "left fewer bent planes, and relocalization answered more views with more false positives (2026-11-30).",
     )
     map_sample_spacing_m: float = Field(0.1, gt=0, description="Voxel size of each map plane's point sample.")
     min_observations: int = Field(

@@ -54,7 +54,7 @@ class MappingParams:
     fuse_min_overlap: float = 0.0
     fuse_check_bridged: bool = True
     fuse_max_far_fraction: float = 0.25
-    fuse_check_local: bool = True
+    fuse_check_local: bool = False
     map_sample_spacing_m: float = 0.1
     min_observations: int = 3
     submap_window_frames: int = 1

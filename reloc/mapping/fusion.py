@@ -7,6 +7,8 @@ at least ``min_overlap`` of the new plane's sample voxels have a voxel of the ol
 (0 means one is enough). With ``check_local`` the old plane's own samples around the new plane must also lie
 within ``max_offset_m`` of the new plane (median): the test against the old plane alone let a door 6 cm deep in its
 niche join the wall around it, once that wall's fused plane had turned a little, and each join turned it further.
+Off by default: it leaves fewer bent planes in the suite's maps, but relocalization on them answered more views and
+let in more false positives (docs/BENCHMARKS.md, "A map plane judged by its own samples where a plane joins it").
 Associated planes are fused by their information: each input plane's (n, d) with its
 covariance (the robust, noise-weighted fit of extraction) contributes ``I_k = C_k^+``; the fused plane minimizes
 ``sum (x - x_k)^T I_k (x - x_k)`` on the unit-normal manifold. The sufficient statistics (count, sum of points,
@@ -49,7 +51,7 @@ class FusionParams:
     spacing_m: float = 0.1
     check_bridged: bool = True
     max_far_fraction: float = 0.25
-    check_local: bool = True
+    check_local: bool = False
 
     def __post_init__(self) -> None:
         if not (0 < self.max_angle_rad < math.pi / 2):
