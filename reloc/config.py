@@ -618,6 +618,13 @@ class EvaluationConfig(_Section):
         "true poses at 0.5, no false positive; Kinect and ToF keep 0.75, where 0.5 let in 5 and 4 false "
         "positives).",
     )
+    hidden_rival_credit: bool = Field(
+        False,
+        description="With optimistic_rivals and occlusion, a rival's credit for a plane unknown to the map also "
+        "shrinks linearly with the share of the plane the map hides from the submap's cameras (none left at "
+        "occlusion_min_fraction, where the plane counts against the rival): a door jamb that a twin pose puts half "
+        "inside a wall is not half a match.",
+    )
     evidence_area_m2: float = Field(
         1.0, gt=0, description="A matched plane's weight (Eq. 12-13) grows with its area up to this (small facets are "
         "weak evidence, and often clutter).",

@@ -709,6 +709,72 @@ def test_a_plane_behind_a_map_wall_is_hidden_but_not_one_seen_through_a_doorway(
     assert states["solid, seen from beyond"] == (1, 0.0)
 
 
+def test_the_exact_hidden_share_of_a_jamb_half_inside_a_wall():
+    """A door jamb 1.2 m deep (normal +x) placed across the solid y = 0 wall of a corridor, half of it behind the
+    wall: as a twin pose puts a jamb it saw in a doorway. Fewer than half of its samples are hidden (pulled 30 % of
+    the way to their centre, more than ``occlusion_margin_m`` behind the wall, where the wall is solid all around the
+    crossing), so it stays unknown to the map (state 1). With ``exact`` the hidden share is counted over all its
+    samples and equals a direct count of them; without, it is a lower bound (here below it), and the state is the
+    same."""
+    from reloc.evaluation.synthetic import Rect, room
+    from reloc.matching._kernels import HIDDEN_SHRINK
+
+    corridor = [r for r in room(6.0, 2.0, 2.7) if r.normal[1] < 0.5]  # all but the y = 0 wall
+    wall = Rect((3.0, 0.0, 1.35), (0, 1, 0), (1, 0, 0), 3.0, 1.35)
+    jamb = Rect((3.0, 0.1, 1.3), (1, 0, 0), (0, 1, 0), 0.6, 0.7)  # y from -0.5 to 0.7, z from 0.6 to 2.0
+    T = look_at((4.6, 1.6, 1.3), (3.0, 0.1, 1.3))
+    reloc = Relocalizer(scene_planes(corridor + [wall]), MatchingParams())
+    used, _, vs_ptr, vs_pts = reloc.prepare(view_planes(corridor + [wall, jamb], T))
+    gap = np.linalg.norm(used.centroids @ T[:3, :3].T + T[:3, 3] - np.array(jamb.center), axis=1)
+    j = int(np.argmin(gap))
+    assert gap[j] < 0.05
+    v = _verify_at(reloc, used, vs_ptr, vs_pts, T, tight=True)
+    assert v.state[0, j] == 1  # unknown to the map
+    pts = vs_pts[vs_ptr[j]:vs_ptr[j + 1]] @ T[:3, :3].T + T[:3, 3]  # its samples in the map frame
+    pulled = pts.mean(axis=0) + HIDDEN_SHRINK * (pts - pts.mean(axis=0))
+    direct = float(np.mean(pulled[:, 1] < -reloc.params.occlusion_margin_m))
+    assert 0.2 < direct < reloc.params.occlusion_min_fraction  # 5 of 12 as built: hidden in part, not enough to mark
+    got = {}
+    for exact in (False, True):
+        state = v.state.copy()
+        frac = reloc.mark_hidden(used, vs_ptr, vs_pts, T[None, :3, :3], T[None, :3, 3], state, exact=exact)
+        got[exact] = (int(state[0, j]), float(frac[0, j]))
+    assert got[True][0] == got[False][0] == 1
+    assert got[True][1] == pytest.approx(direct, abs=1e-6)
+    assert got[False][1] < got[True][1]  # 4 of 12: counting stopped once the plane could no longer be marked
+
+
+def test_a_rivals_credit_for_a_plane_shrinks_with_its_hidden_share():
+    # Two poses 2 m apart share 4 submap planes; the true one also matches planes 4 and 5, which the rival leaves
+    # where the map knows nothing, 0.4 of each hidden behind a map wall. Truth: 4 x 0.5 + 2 = 4 of a total weight
+    # of 6 (the rival has 2). Credited with 0.75 of a match for those two planes, the rival has (2 + 1.5) / 6; with
+    # hidden_rival_credit the credit shrinks to 1 - 0.4 / 0.5 of it, (2 + 0.3) / 6, and the truth is 1.74 times
+    # ahead; a plane hidden for occlusion_min_fraction or more earns nothing.
+    from reloc.config import Config
+    from reloc.matching.scoring import decide
+
+    on = MatchingParams.from_config(Config.model_validate({"evaluation": {"hidden_rival_credit": True}}))
+    off = MatchingParams.from_config(Config())
+    assert on.hidden_rival_credit and not off.hidden_rival_credit
+    R = np.stack([np.eye(3)] * 2)
+    t = np.array([[0.0, 0.0, 0.0], [2.0, 0.0, 0.0]])
+    match = np.array([[0, 1, 2, 3, 4, 5], [10, 11, 12, 13, -1, -1]], np.int32)
+    state = np.where(match >= 0, 0, 1).astype(np.int8)
+    got = {}
+    for name, params, share in (("off", off, 0.4), ("on", on, 0.4), ("on, half hidden", on, 0.5)):
+        hidden = np.where(state == 1, share, 0.0)
+        got[name] = decide(R, t, match, (match >= 0).astype(float), np.array([6, 4]), np.array([1.0, 4 / 6]),
+                           params, state=state, areas=np.full(6, 2.0), unknown=np.array([0.0, 2 / 6]),
+                           hidden_frac=hidden)
+    assert not got["off"].accepted and got["off"].reason.startswith("ambiguous"), got["off"].reason
+    assert got["on"].accepted and got["on"].best == 0, got["on"].reason
+    assert got["off"].score == pytest.approx(4 / 6, rel=1e-3)
+    assert got["on"].score == pytest.approx(got["off"].score)  # the winner's density is not credited
+    assert got["off"].runner_up_score == pytest.approx(3.5 / 6, rel=1e-3)
+    assert got["on"].runner_up_score == pytest.approx(2.3 / 6, rel=1e-3)
+    assert got["on, half hidden"].runner_up_score == pytest.approx(2 / 6, rel=1e-3)
+
+
 def test_a_camera_path_through_a_map_wall_is_blocked_but_not_one_through_a_doorway():
     """A window's cameras walk 2 m across the y = 0 wall of a corridor (map: the corridor, that wall solid or with
     a doorway 0.9 m wide at x from 2.55 to 3.45 m). Across the solid wall the path is blocked; through the doorway

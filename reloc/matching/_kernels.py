@@ -1042,14 +1042,14 @@ def _hidden_from(cx, cy, cz, px, py, pz, nx, ny, nz, map_normals, map_offsets, m
 
 @njit
 def mark_hidden(R, t, state, sub_normals, vs_ptr, vs_points, views, map_normals, map_offsets, map_centroids,
-                map_radii, bases, surf_ptr, surf_keys, cell, margin, erode, min_fraction, out_frac):
+                map_radii, bases, surf_ptr, surf_keys, cell, margin, erode, min_fraction, exact, out_frac):
     """Planes unknown to the map (``state`` 1) under each pose ``(R[h], t[h])`` that the map says the cameras could
     not have seen: at least ``min_fraction`` of their verification samples, moved toward their centre to
     ``HIDDEN_SHRINK`` of their distance from it (off the borders that lines of sight graze), are hidden behind a map
     surface from every camera position of ``views`` (the submap's viewpoints, its frame). Their state becomes 6 in
     place; ``out_frac`` (H, S) float32 gets the hidden fraction of each plane looked at (0 elsewhere; for a plane
-    not marked, counted only until the samples left could no longer make ``min_fraction``). Returns the planes
-    marked.
+    not marked, counted only until the samples left could no longer make ``min_fraction``, unless ``exact``: then
+    over all its samples). Returns the planes marked.
 
     A look-alike pose puts what the cameras saw through a doorway, or the side of a door jamb, behind a wall of the
     map, where the map knows nothing (it never saw behind the wall) but where nothing could have been seen either.
@@ -1094,7 +1094,7 @@ def mark_hidden(R, t, state, sub_normals, vs_ptr, vs_points, views, map_normals,
             need = min_fraction * m
             hidden = 0
             for s in range(s0, s1):
-                if hidden + (s1 - s) < need:
+                if not exact and hidden + (s1 - s) < need:
                     break
                 qx = mx + HIDDEN_SHRINK * (vs_points[s, 0] - mx)
                 qy = my + HIDDEN_SHRINK * (vs_points[s, 1] - my)
@@ -1412,7 +1412,7 @@ def _warmup() -> None:
     sptr3 = np.array([0, 1, 1, 1], np.int64)
     hid = np.ones((1, S), np.int8)
     mark_hidden(Rs, ts, hid, normals, vs_ptr, pts, np.zeros((1, 3)), normals, offsets, centroids, radii, bases,
-                sptr3, skeys, 0.1, 0.04, 0.3, 0.5, np.empty((1, S), np.float32))
+                sptr3, skeys, 0.1, 0.04, 0.3, 0.5, True, np.empty((1, S), np.float32))
     path_blocked(Rs, ts, np.array([[0.0, 0.0, 2.0], [0.0, 0.0, -2.0]]), 0.3, normals, offsets, centroids, radii,
                  bases, sptr3, skeys, 0.1, 0.05, 0.5, np.empty(1, np.bool_))
     dens = np.empty(1)

@@ -169,6 +169,9 @@ class _Hypotheses:
         self.unrefined: np.ndarray | None = None
         # With path_test: the raw hypotheses of the modes whose camera path walks through a wall of the map.
         self.impossible: np.ndarray | None = None
+        # With hidden_rival_credit (and occlusion): per mode, the share of each plane the map hides from the
+        # submap's cameras (:meth:`Relocalizer.mark_hidden`, exact).
+        self.hidden_frac: np.ndarray | None = None
 
     def blocked(self) -> np.ndarray | None:
         """Per mode of a decision over refined poses, whether its camera path walks through a wall of the map (it is
@@ -304,11 +307,11 @@ class Relocalizer:
         )
         return Verification(**out, evaluated=int(evaluated))
 
-    def mark_hidden(self, used: PlaneSet, vs_ptr, vs_pts, R, t, state: np.ndarray) -> np.ndarray:
+    def mark_hidden(self, used: PlaneSet, vs_ptr, vs_pts, R, t, state: np.ndarray, exact: bool = False) -> np.ndarray:
         """Mark the planes of ``used`` unknown to the map under ``(R, t)`` (``state`` 1, changed in place to 6) that
         the map says the submap's cameras could not have seen (:func:`reloc.matching._kernels.mark_hidden`; the
         cameras are ``used.viewpoints``, or the origin of the latest camera's frame). Returns the (H, S) hidden
-        fractions."""
+        fractions (of a plane not marked, exact only with ``exact``, else a lower bound)."""
         p = self.params
         ix = self.index
         views = used.viewpoints if used.viewpoints is not None else np.zeros((1, 3))
@@ -316,7 +319,7 @@ class Relocalizer:
         K.mark_hidden(np.ascontiguousarray(R), np.ascontiguousarray(t), state, used.normals, vs_ptr, vs_pts,
                       np.ascontiguousarray(views), ix.normals, ix.offsets, ix.centroids, ix.radii, ix.bases,
                       ix.surf_ptr, ix.surf_keys, SURFACE_CELL_M, p.occlusion_margin_m, p.occlusion_erode_m,
-                      p.occlusion_min_fraction, frac)
+                      p.occlusion_min_fraction, exact, frac)
         return frac
 
     def path_blocked(self, used: PlaneSet, R, t) -> np.ndarray:
@@ -478,14 +481,18 @@ class Relocalizer:
         sharp = self.verify(used, vs_ptr, vs_pts, R, t, cand, require_triplet=False, tight=True,
                             max_offset_m=p.decision_max_offset_m)
         v = replace(sharp, n_matched=v.n_matched, explained=v.explained, unknown=v.unknown, passed=v.passed)
+        hidden = None
         if p.occlusion:
-            self.mark_hidden(used, vs_ptr, vs_pts, R, t, v.state)
+            exact = p.hidden_rival_credit and p.optimistic_rivals
+            frac = self.mark_hidden(used, vs_ptr, vs_pts, R, t, v.state, exact=exact)
+            hidden = frac[v.passed] if exact else None
         blocked = self.path_blocked(used, R, t) if p.path_test else np.zeros(len(leaders), dtype=bool)
         out = _Hypotheses(len(used))
         out.add(R, t, cand, v)
         out.leader = leaders[v.passed]
         out.unrefined = leaders[~refined]
         out.impossible = leaders[blocked]
+        out.hidden_frac = hidden
         return out
 
     def _judge(self, hyps, used: PlaneSet, vs_ptr, vs_pts, min_matched: int, timings: dict,
@@ -572,7 +579,7 @@ class Relocalizer:
         part: dict = {}
         decision = decide(hyps.R, hyps.t, hyps.match, hyps.over, hyps.n_matched, hyps.explained, self.params,
                           min_matched=min_matched, state=hyps.state, areas=used.areas, free_frac=hyps.free_frac,
-                          unknown=hyps.unknown, blocked=hyps.blocked(),
+                          unknown=hyps.unknown, blocked=hyps.blocked(), hidden_frac=hyps.hidden_frac,
                           optimistic=len(self.index.free_keys) > 0, timings_ms=part, modes=modes)
         timings["decide.weights"] += part.get("weights", 0.0)
         timings["decide.density"] += part.get("density", 0.0)

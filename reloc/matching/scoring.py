@@ -141,6 +141,7 @@ def decide(
     free_frac: np.ndarray | None = None,
     unknown: np.ndarray | None = None,
     blocked: np.ndarray | None = None,
+    hidden_frac: np.ndarray | None = None,
     optimistic: bool = True,
     timings_ms: dict | None = None,
     modes: dict | None = None,
@@ -157,6 +158,8 @@ def decide(
     ``free_frac`` (H, S): the fraction of each unmatched plane's samples in the map's known free space, which shrinks
     the credit an optimistic rival gets for that plane. ``blocked`` (H,): poses whose camera path walks through a
     wall of the map (see ``MatchingParams.path_test``); their modes are no rivals, though they may still win.
+    ``hidden_frac`` (H, S): the share of each plane the map hides from the submap's cameras, which shrinks an
+    optimistic rival's credit for it too (``hidden_rival_credit``; none left at ``occlusion_min_fraction``).
 
     ``timings_ms``: when given, the milliseconds of the frequency weights (``"weights"``, Eq. 12-13) and of the kernel
     density (``"density"``, Eq. 14) are added to it. ``modes``: when given, it receives the poses' modes, for
@@ -187,6 +190,10 @@ def decide(
         credit = np.where(state == 1, plane_w[None, :], 0.0)
         if free_frac is not None and params.max_free_fraction > 0:
             credit = credit * np.clip(1.0 - free_frac / params.max_free_fraction, 0.0, 1.0)
+        if hidden_frac is not None and params.hidden_rival_credit and params.occlusion_min_fraction > 0:
+            # A plane the twin pose puts partly behind a wall of the map (a door jamb inside it) is partly a plane
+            # no camera could have seen there: at occlusion_min_fraction it counts against the pose (state 6).
+            credit = credit * np.clip(1.0 - hidden_frac / params.occlusion_min_fraction, 0.0, 1.0)
         # The credit adds to the rival's evidence before it is clipped at zero: planes in conflict with the map
         # still count against it (a pose that contradicts the map more than it matches gains nothing from
         # planes the map does not know).
