@@ -7,6 +7,12 @@ tuned suite and replicates against fresh runs with a candidate default::
         benchmarks/results/reloc_accuracy.json:/tmp/new/reloc_accuracy.json \\
         benchmarks/results/reloc_accuracy_rooms_tour_replicate_a.json:/tmp/new/rt_a.json
 
+With ``--variant KEY=VALUE``, each argument is one record holding ours and a variant evaluated beside it on the same
+maps and queries (``reloc_accuracy.py --prepared DIR --variant KEY=VALUE``), and ours is compared with the variant::
+
+    .venv/bin/python benchmarks/compare_accuracy.py --name my_change --variant hidden_rival_credit=True \
+        /tmp/new/var_tuned.json /tmp/new/var_a.json
+
 Per pair and source (``extraction/<sensor>/ours`` by default): TP / TN / FP / FN before and after, the outcomes that
 changed (query, its scene's map, the labels, the reason after), and the maps' bent planes (``PlaneMap.consistency``);
 then the totals per sensor over all pairs. Prints the tables and writes ``benchmarks/results/<name>.json`` (small:
@@ -67,7 +73,11 @@ def compare_source(before: dict, after: dict) -> dict:
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("pairs", nargs="+", metavar="BEFORE.json:AFTER.json", help="Records of one suite, before and after.")
+    ap.add_argument("pairs", nargs="+", metavar="BEFORE.json:AFTER.json",
+                    help="Records of one suite, before and after (with --variant: one record each).")
+    ap.add_argument("--variant", default=None, metavar="KEY=VALUE[,...]",
+                    help="Compare each source with the variant beside it in the same record (the source "
+                    "'<source> with KEY=VALUE' of reloc_accuracy.py --variant).")
     ap.add_argument("--sources", default="extraction/kinect/ours,extraction/tof/ours,extraction/stereo/ours",
                     help="Sources to compare (comma separated; those a record lacks are skipped).")
     ap.add_argument("--name", default="compare_accuracy", help="Result file stem in benchmarks/results/.")
@@ -79,16 +89,20 @@ def main(argv=None) -> int:
     sources = [s for s in args.sources.split(",") if s]
     pairs, rows, totals = [], [], {}
     for pair in args.pairs:
-        if pair.count(":") != 1:
+        if args.variant is not None:
+            a = b = pair
+        elif pair.count(":") != 1:
             raise SystemExit(f"{pair!r}: expected BEFORE.json:AFTER.json")
-        a, b = pair.split(":")
+        else:
+            a, b = pair.split(":")
         ra, rb = _load(a), _load(b)
         out = {"before": a, "after": b, "commits": [ra.get("git", {}).get("commit"), rb.get("git", {}).get("commit")],
                "sources": {}}
         for s in sources:
-            if s not in ra["results"]["sources"] or s not in rb["results"]["sources"]:
+            s_after = s if args.variant is None else f"{s} with {args.variant}"
+            if s not in ra["results"]["sources"] or s_after not in rb["results"]["sources"]:
                 continue
-            c = compare_source(ra["results"]["sources"][s], rb["results"]["sources"][s])
+            c = compare_source(ra["results"]["sources"][s], rb["results"]["sources"][s_after])
             out["sources"][s] = c
             moves = Counter((x["before"], x["after"]) for x in c["changed"])
             rows.append([Path(b).stem, s, " / ".join(str(c["before"][k]) for k in _COUNTS),
@@ -118,7 +132,7 @@ def main(argv=None) -> int:
                           f"{x['after']}")
     totals_out = {s: {"before": dict(t["before"]), "after": dict(t["after"]), "bent_planes": t["bent_planes"],
                       "bent_area_m2": [round(v, 2) for v in t["bent_area_m2"]]} for s, t in totals.items()}
-    path = write_results(name, params={"pairs": args.pairs, "sources": sources},
+    path = write_results(name, params={"pairs": args.pairs, "sources": sources, "variant": args.variant},
                          results={"pairs": pairs, "totals": totals_out})
     print(f"wrote {path}")
     return 0

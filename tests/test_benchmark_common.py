@@ -314,6 +314,15 @@ def test_two_accuracy_records_are_compared_view_by_view_in_their_own_maps(tmp_pa
     assert c["bent_before"] == {"planes": 4, "area_m2": 5.0, "map_planes": 15} and c["bent_after"]["planes"] == 2
     assert res["totals"]["extraction/kinect/ours"]["bent_planes"] == [4, 2]
     assert "office/robot/2 in the map of corridor: TN -> FP" in capsys.readouterr().out
+    # One record holding ours and a variant beside it (reloc_accuracy.py --variant): the same comparison.
+    both = record(before, 3)
+    both["results"]["sources"]["extraction/kinect/ours with x=1"] = record(after, 1)["results"]["sources"][
+        "extraction/kinect/ours"]
+    v = tmp_path / "v.json"
+    v.write_text(json.dumps(both))
+    assert main(["--name", "cmpv", "--variant", "x=1", str(v)]) == 0
+    res_v = json.loads((tmp_path / "cmpv.json").read_text())["results"]
+    assert res_v["pairs"][0]["sources"] == res["pairs"][0]["sources"] and res_v["totals"] == res["totals"]
     b.write_text(json.dumps(record({("office", "office/robot/1"): "TP"}, 1)))
     with pytest.raises(SystemExit, match="do not hold the same queries"):
         main(["--name", "cmp", f"{a}:{b}"])
