@@ -43,8 +43,8 @@ def test_the_benchmark_scripts_refuse_a_bad_name_before_measuring():
 
     root = Path(__file__).resolve().parents[1]
     for script in ("reloc_accuracy.py", "extraction_accuracy.py", "extraction_speed.py", "sim_speed.py",
-                   "map_accuracy.py", "compare_accuracy.py"):
-        extra = ["x.json:y.json"] if script == "compare_accuracy.py" else []
+                   "map_accuracy.py", "compare_accuracy.py", "decision_latency.py"):
+        extra = {"compare_accuracy.py": ["x.json:y.json"], "decision_latency.py": ["--prepared", "x"]}.get(script, [])
         done = subprocess.run([sys.executable, str(root / "benchmarks" / script), "--name", "a/b", *extra],
                               capture_output=True, text=True, timeout=120)
         assert done.returncode == 2 and "--name: expected a plain file stem" in done.stderr, (script, done.stderr)

@@ -153,3 +153,30 @@ def test_a_loaded_suite_is_checked_against_every_parameter_it_was_built_with(pre
     assert mismatch(replace(loaded, spec=stereo), old_stereo, stereo, built_with(stereo)) == [
         "extraction.layer_min_shared: saved 0.0, asked 0.5"]
     assert mismatch(replace(loaded, spec=stereo), {"params": built_with(stereo)}, stereo, built_with(stereo)) == []
+
+
+def test_the_decision_latency_benchmark_times_every_query_of_a_saved_suite(saved, monkeypatch, capsys):
+    """benchmarks/decision_latency.py relocalizes every query of the suite (positives and negatives in each scene's
+    map, as reloc eval does) with ours and each variant, and records per matcher and stage the times of as many
+    queries; a bad variant is refused before anything is timed."""
+    from pathlib import Path
+
+    bench = Path(__file__).resolve().parents[1] / "benchmarks"
+    monkeypatch.syspath_prepend(str(bench))
+    import _common
+    from decision_latency import STAGES, main
+
+    monkeypatch.setattr(_common, "RESULTS_DIR", saved.parent)
+    assert main(["--prepared", str(saved), "--variant", "hidden_rival_credit=True", "--repeats", "2",
+                 "--name", "dl"]) == 0
+    res = json.loads((saved.parent / "dl.json").read_text())["results"]
+    loaded, _ = load_prepared(saved)
+    n = sum(len(qs) + loaded.spec.negatives_per_scene for qs in loaded.queries.values())
+    assert set(res) == {"ours", "ours with hidden_rival_credit=True"}
+    for r in res.values():
+        assert r["queries"] == n == 12
+        assert set(r["ms"]) == set(STAGES) and r["ms"]["total"]["median"] > 0
+    assert "12 queries, fastest of 2 passes each" in capsys.readouterr().out
+    with pytest.raises(SystemExit):
+        main(["--prepared", str(saved), "--variant", "no_such_setting=1"])
+    assert "no_such_setting" in capsys.readouterr().err
