@@ -753,8 +753,8 @@ def test_a_rivals_credit_for_a_plane_shrinks_with_its_hidden_share():
     from reloc.config import Config
     from reloc.matching.scoring import decide
 
-    on = MatchingParams.from_config(Config.model_validate({"evaluation": {"hidden_rival_credit": True}}))
-    off = MatchingParams.from_config(Config())
+    on = MatchingParams.from_config(Config())  # the default
+    off = MatchingParams.from_config(Config.model_validate({"evaluation": {"hidden_rival_credit": False}}))
     assert on.hidden_rival_credit and not off.hidden_rival_credit
     R = np.stack([np.eye(3)] * 2)
     t = np.array([[0.0, 0.0, 0.0], [2.0, 0.0, 0.0]])

@@ -92,7 +92,7 @@ class MatchingParams:
     equal_rival_margin: float = 0.5
     rival_unknown_weight: float = 0.75
     noisy_rival_unknown_weight: float = 0.5
-    hidden_rival_credit: bool = False
+    hidden_rival_credit: bool = True
     evidence_area_m2: float = 1.0
     distinct_translation_m: float = 0.25
     distinct_rotation_rad: float = math.radians(5.0)
