@@ -95,15 +95,16 @@ def changed_outcomes(base: list, other: list) -> list[str]:
 def _row(label, s):
     return [label, s.TP, s.TN, s.FP, s.FN, s.ambiguous, 100 * s.precision if math.isfinite(s.precision) else None,
             100 * s.recall if math.isfinite(s.recall) else None, s.identifiable,
-            100 * s.recall_identifiable if math.isfinite(s.recall_identifiable) else None,
+            100 * s.recall_identifiable if math.isfinite(s.recall_identifiable) else None, s.unique,
+            100 * s.recall_unique if math.isfinite(s.recall_unique) else None,
             100 * s.median_translation_error_m if math.isfinite(s.median_translation_error_m) else None,
             s.median_rotation_error_deg if math.isfinite(s.median_rotation_error_deg) else None, s.mean_ms,
             s.median_ms]
 
 
-HEAD = ["", "TP", "TN", "FP", "FN", "amb", "P[%]", "R[%]", "ident", "R_id[%]", "t_err[cm]", "r_err[deg]", "mean[ms]",
-        "med[ms]"]
-FLOATFMT = ["", "", "", "", "", "", ".2f", ".2f", "", ".2f", ".2f", ".3f", ".2f", ".2f"]
+HEAD = ["", "TP", "TN", "FP", "FN", "amb", "P[%]", "R[%]", "ident", "R_id[%]", "uniq", "R_un[%]", "t_err[cm]",
+        "r_err[deg]", "mean[ms]", "med[ms]"]
+FLOATFMT = ["", "", "", "", "", "", ".2f", ".2f", "", ".2f", "", ".2f", ".2f", ".3f", ".2f", ".2f"]
 
 
 def main() -> int:
@@ -288,12 +289,16 @@ def main() -> int:
         # and the recall over them: what the search and the decision lose.
         "identifiable": t["identifiable"], "recall_identifiable": t["recall_identifiable"],
         "recall_ceiling": round(t["identifiable"] / (t["TP"] + t["FN"]), 6) if t["TP"] + t["FN"] else None,
+        # Of those, the ones no symmetric twin of the true pose is confirmed for as well (the rest the planes
+        # cannot tell from a twin under the acceptance rules), and the recall over them.
+        "unique": t.get("unique"), "recall_unique": t.get("recall_unique"),
     }
     print(f"goals ({main_key}): FP {verdict['fp']} (none: {verdict['no_false_positive']}), recall "
           f"{verdict['recall']} (>= 0.95: {verdict['recall_ok']}), median errors {verdict['median_t_err_m']} m "
           f"{verdict['median_r_err_deg']} deg (< 3 cm and 0.5 deg: {verdict['error_ok']}); identifiable "
           f"{verdict['identifiable']} of {t['TP'] + t['FN']} positives (the recall's ceiling under the acceptance "
-          f"rules {verdict['recall_ceiling']}), recall over them {verdict['recall_identifiable']}")
+          f"rules {verdict['recall_ceiling']}), recall over them {verdict['recall_identifiable']}; unique (no twin "
+          f"of the true pose confirmed too) {verdict['unique']}, recall over them {verdict['recall_unique']}")
     specs = {f"{source}/{noise}": asdict(suite(noise, plane_source=source)) for source, noise in sources}
     path = write_results(args.name, params={**vars(args), "spec": specs},
                          results={"sources": results, "ablation": ablation, "verdict": verdict})

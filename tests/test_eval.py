@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import math
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -47,14 +48,52 @@ def test_recall_over_identifiable_queries_leaves_out_views_the_planes_cannot_pin
 
     outs = [o("TP", True), o("TP", True), o("FN", True), o("FN", False, "pose weakly constrained"),
             o("FN", False, "3 submap planes"), o("TN", None)]
+    # Whether a symmetric twin of the true pose is confirmed too: for the identifiable ones only.
+    outs = [replace(x, twin_confirmed=twin) for x, twin in zip(outs, (False, True, False, None, None, None))]
     s = summarize("s", outs)
     assert s.recall == pytest.approx(2 / 5)
     assert (s.identifiable, s.identified) == (3, 2) and s.recall_identifiable == pytest.approx(2 / 3)
+    assert (s.unique, s.identified_unique) == (2, 1) and s.recall_unique == pytest.approx(1 / 2)
     row = format_table([s]).splitlines()[-1].split()
-    assert row[8:10] == ["3", "66.67"]
+    assert row[8:12] == ["3", "66.67", "2", "50.00"]
     d = json.loads(json.dumps(s.to_dict()))
     assert d["identifiable"] == 3 and d["recall_identifiable"] == pytest.approx(0.666667)
+    assert d["unique"] == 2 and d["recall_unique"] == pytest.approx(0.5)
+    assert json.loads(json.dumps(outs[1].to_dict()))["twin_confirmed"] is True
     assert json.loads(json.dumps(outs[3].to_dict()))["identifiable_reason"] == "pose weakly constrained"
+
+
+def test_a_twin_of_the_true_pose_is_confirmed_where_the_map_holds_the_twin_room():
+    """A view in one furnished office of a map that holds a second, identical office 7 m along x: the true pose
+    moved 7 m (the twin) is confirmed as the truth is; moved the other way, or turned a quarter about the room's
+    centre, it is not. In a map of the first office alone, no twin is."""
+    from reloc.evaluation.metrics import identifiable, twin_confirmed
+    from reloc.evaluation.synthetic import furnished_room, look_at, scene_planes, view_planes
+    from reloc.matching import MatchingParams, Relocalizer
+
+    def shifted(dx):
+        S = np.eye(4)
+        S[0, 3] = dx
+        return S
+
+    c, s_ = math.cos(math.pi / 2), math.sin(math.pi / 2)
+    quarter = np.array([[c, -s_, 0, 3.0 - 3.0 * c + 2.5 * s_], [s_, c, 0, 2.5 - 3.0 * s_ - 2.5 * c], [0, 0, 1, 0],
+                        [0, 0, 0, 1.0]])
+    first = furnished_room("office")
+    T = look_at((1.0, 1.0, 1.4), (4.5, 3.5, 0.8))
+    sub = view_planes(first, T)
+    twins = Relocalizer(scene_planes(first + furnished_room("office", origin=(7.0, 0.0))), MatchingParams())
+    alone = Relocalizer(scene_planes(first), MatchingParams())
+    assert identifiable(twins, sub, T)[0] and identifiable(alone, sub, T)[0]
+    assert twin_confirmed(twins, sub, T, [shifted(7.0)])
+    assert not twin_confirmed(twins, sub, T, [shifted(-7.0), quarter])
+    assert not twin_confirmed(alone, sub, T, [shifted(7.0), shifted(-7.0), quarter])
+    # reloc eval --explain says so, given the scene's symmetries.
+    from reloc.evaluation.explain import explain_query
+
+    assert "a symmetric twin of it is confirmed too" in explain_query(twins, sub, T, symmetries=[shifted(7.0)])
+    assert "no symmetric twin of it is confirmed: unique" in explain_query(alone, sub, T, symmetries=[shifted(7.0)])
+    assert "symmetric twin" not in explain_query(twins, sub, T)
 
 
 def test_ambiguity_labels_come_from_the_scene_geometry():
@@ -110,6 +149,10 @@ def test_short_end_to_end_run_has_no_false_positive(quick_results):
     assert all(o.identifiable_reason for o in checked if not o.identifiable)
     assert s.identifiable == sum(o.identifiable for o in checked) and s.identified == s.TP
     assert s.recall_identifiable == pytest.approx(s.TP / s.identifiable)
+    # Twins are looked for where the true pose is identifiable; these scenes have none, so every such view is unique.
+    assert {r.scene for r in quick_results} == {"office", "living_room"}
+    assert all((o.twin_confirmed is None) == (o.identifiable is not True) for o in outcomes)
+    assert (s.unique, s.identified_unique) == (s.identifiable, s.identified)
 
 
 def test_demo_runs_and_reports(tmp_path, monkeypatch, capsys):

@@ -10,7 +10,7 @@ import math
 
 import numpy as np
 
-from reloc.evaluation.metrics import identifiable
+from reloc.evaluation.metrics import identifiable, twin_confirmed
 from reloc.matching.relocalizer import PLANE_STATES, Relocalizer
 from reloc.matching.scoring import in_conflict, match_quality
 from reloc.planeset import PlaneSet
@@ -41,7 +41,7 @@ def _pose(hyps, i: int) -> np.ndarray:
 
 
 def explain_query(relocalizer: Relocalizer, submap: PlaneSet, T_true: np.ndarray | None = None, *,
-                  max_modes: int = 8) -> str:
+                  max_modes: int = 8, symmetries=()) -> str:
     """A text account of ``relocalizer.locate(submap)``: the result (with its pose error when ``T_true``, the
     ground truth ``T_map_cam``, is given), the decision over the raw hypotheses and, when made, the one over refined
     poses; the poses weighed (per mode: distance to the truth, matched planes, explained and unknown fractions of
@@ -50,14 +50,15 @@ def explain_query(relocalizer: Relocalizer, submap: PlaneSet, T_true: np.ndarray
     through a wall of the map); what each submap plane was under the decision's best pose, the pose nearest the truth
     and the strongest other pose (its state, and the map plane it matched, -1 for none); and whether the true pose is
     identifiable (:func:`reloc.evaluation.metrics.identifiable`: the map confirms it as ``locate`` would accept
-    it)."""
+    it) and, with the scene's ``symmetries``, whether a symmetric twin of it is confirmed too
+    (:func:`reloc.evaluation.metrics.twin_confirmed`)."""
     trace: dict = {}
     res = relocalizer.locate(submap, trace=trace)
-    return explain_result(relocalizer, submap, res, trace, T_true, max_modes=max_modes)
+    return explain_result(relocalizer, submap, res, trace, T_true, max_modes=max_modes, symmetries=symmetries)
 
 
 def explain_result(relocalizer: Relocalizer, submap: PlaneSet, res, trace: dict, T_true: np.ndarray | None = None,
-                   *, max_modes: int = 8, identified: tuple[bool, str] | None = None) -> str:
+                   *, max_modes: int = 8, identified: tuple[bool, str] | None = None, symmetries=()) -> str:
     """:func:`explain_query` of a result already there: ``res`` and ``trace`` from ``relocalizer.locate(submap,
     trace=trace)``; ``identified``, when the caller has it, is :func:`identifiable`'s answer for ``T_true``."""
     out = [f"result: {res.status}" + (f" ({res.reason})" if res.reason else "")]
@@ -123,4 +124,8 @@ def explain_result(relocalizer: Relocalizer, submap: PlaneSet, res, trace: dict,
         ident, why = identified if identified is not None else identifiable(relocalizer, submap, T_true)
         out.append("the true pose: " + ("identifiable (the map confirms it as locate would accept it)" if ident
                                         else f"not identifiable ({why})"))
+        if ident and len(symmetries):
+            twin = twin_confirmed(relocalizer, submap, T_true, symmetries)
+            out.append("  " + ("a symmetric twin of it is confirmed too (only the decision's scores can tell the two "
+                               "apart)" if twin else "no symmetric twin of it is confirmed: unique"))
     return "\n".join(out)

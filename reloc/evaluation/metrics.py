@@ -18,6 +18,14 @@ identifiable cannot be answered right by any search under the same acceptance ru
 pose down (a corridor view with nothing across the corridor) or the map does not hold what it sees. ``R_id``, the
 recall over the identifiable queries, is what the search and the decision among poses lose; ``R`` also counts what
 the planes cannot tell.
+
+An identifiable query is *unique* when, moreover, no symmetric twin of its true pose (``S @ T`` for each symmetry
+``S`` of the scene: the next meeting room, the corridor turned end for end; see
+:func:`reloc.evaluation.ambiguity.scene_symmetries`) is confirmed too (:func:`twin_confirmed`). A view that is not
+ambiguous to the renderer (a few per cent of its pixels differ from its twin's) may still be one whose planes pass
+the winner's tests at the twin as well: then only the decision's scores can tell the truth from the twin, and
+where they are close it rejects the view as ambiguous. ``R_un``, the recall over the unique queries, leaves those
+views out too (an answered one among them counts in ``R`` and ``R_id``, not in ``R_un``).
 """
 
 from __future__ import annotations
@@ -27,8 +35,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-__all__ = ["Outcome", "classify", "identifiable", "Summary", "summarize", "format_table", "TP_MAX_TRANSLATION_M",
-           "TP_MAX_ROTATION_DEG"]
+__all__ = ["Outcome", "classify", "identifiable", "twin_confirmed", "Summary", "summarize", "format_table",
+           "TP_MAX_TRANSLATION_M", "TP_MAX_ROTATION_DEG"]
 
 TP_MAX_TRANSLATION_M = 0.25
 TP_MAX_ROTATION_DEG = 5.0
@@ -52,6 +60,7 @@ class Outcome:
     counts: dict = field(default_factory=dict)
     identifiable: bool | None = None  # None: a negative or ambiguous query, or not checked
     identifiable_reason: str = ""  # why the true pose is not confirmed (empty when it is)
+    twin_confirmed: bool | None = None  # a symmetric twin of the true pose is confirmed too (None: not checked)
 
     def to_dict(self) -> dict:
         def num(v):
@@ -63,7 +72,7 @@ class Outcome:
             "translation_error_m": num(self.translation_error_m), "rotation_error_deg": num(self.rotation_error_deg),
             "total_ms": num(self.total_ms), "timings_ms": {k: num(v) for k, v in self.timings_ms.items()},
             "counts": dict(self.counts), "identifiable": self.identifiable,
-            "identifiable_reason": self.identifiable_reason,
+            "identifiable_reason": self.identifiable_reason, "twin_confirmed": self.twin_confirmed,
         }
 
 
@@ -92,6 +101,23 @@ def identifiable(relocalizer, submap, T_true) -> tuple[bool, str]:
     return True, ""
 
 
+def twin_confirmed(relocalizer, submap, T_true, symmetries) -> bool:
+    """Whether ``relocalizer`` confirms a symmetric twin ``S @ T_true`` of the true pose (4, 4) for some ``S`` of
+    ``symmetries`` (4x4 world-to-world transforms, :func:`reloc.evaluation.ambiguity.scene_symmetries`) as it would
+    the truth (:func:`identifiable`: its refined pose within the TP thresholds of the twin)."""
+    from reloc.transforms import pose_error
+
+    for S in symmetries:
+        T_twin = np.asarray(S, dtype=np.float64) @ np.asarray(T_true, dtype=np.float64)
+        check = relocalizer.confirm(submap, T_twin)
+        if not check.relocalized:
+            continue
+        t_err, r_err = pose_error(check.T_map_cam, T_twin)
+        if t_err <= TP_MAX_TRANSLATION_M and r_err <= TP_MAX_ROTATION_DEG:
+            return True
+    return False
+
+
 @dataclass(frozen=True)
 class Summary:
     name: str
@@ -111,6 +137,9 @@ class Summary:
     identifiable: int = 0  # positive, unambiguous queries whose true pose the map confirms
     identified: int = 0  # of those, the TPs
     recall_identifiable: float = math.nan  # identified / identifiable
+    unique: int = 0  # identifiable queries with no symmetric twin of the true pose confirmed as well
+    identified_unique: int = 0  # of those, the TPs
+    recall_unique: float = math.nan  # identified_unique / unique
 
     def to_dict(self) -> dict:
         out = {}
@@ -129,6 +158,8 @@ def summarize(name: str, outcomes: list[Outcome]) -> Summary:
     tp, tn, fp, fn = (labels.count(x) for x in ("TP", "TN", "FP", "FN"))
     identifiable = sum(o.identifiable is True for o in outcomes)
     identified = sum(o.identifiable is True and o.label == "TP" for o in outcomes)
+    unique = sum(o.identifiable is True and o.twin_confirmed is False for o in outcomes)
+    identified_unique = sum(o.identifiable is True and o.twin_confirmed is False and o.label == "TP" for o in outcomes)
     errs = np.array([(o.translation_error_m, o.rotation_error_deg) for o in outcomes if o.label == "TP"]).reshape(-1, 2)
     times = np.array([o.total_ms for o in outcomes if math.isfinite(o.total_ms)])
     stages: dict[str, list[float]] = {}
@@ -147,6 +178,8 @@ def summarize(name: str, outcomes: list[Outcome]) -> Summary:
         stage_mean_ms={k: float(np.mean(v)) for k, v in stages.items()},
         identifiable=identifiable, identified=identified,
         recall_identifiable=identified / identifiable if identifiable else math.nan,
+        unique=unique, identified_unique=identified_unique,
+        recall_unique=identified_unique / unique if unique else math.nan,
     )
 
 
@@ -156,15 +189,16 @@ def _fmt(v: float, scale: float = 1.0, digits: int = 2) -> str:
 
 def format_table(rows: list[Summary], first_column: str = "scene") -> str:
     """A plain-text table: name, TP TN FP FN, ambiguous, P %, R %, identifiable queries and the recall over them,
-    median errors (cm, deg), mean/median ms."""
+    unique queries and the recall over them, median errors (cm, deg), mean/median ms."""
     head = (f"{first_column:<16} {'TP':>4} {'TN':>4} {'FP':>4} {'FN':>4} {'amb':>4} {'P[%]':>7} {'R[%]':>7} "
-            f"{'ident':>5} {'R_id[%]':>7} {'t_err[cm]':>9} {'r_err[deg]':>10} {'mean[ms]':>9} {'med[ms]':>8}")
+            f"{'ident':>5} {'R_id[%]':>7} {'uniq':>5} {'R_un[%]':>7} {'t_err[cm]':>9} {'r_err[deg]':>10} "
+            f"{'mean[ms]':>9} {'med[ms]':>8}")
     lines = [head, "-" * len(head)]
     for s in rows:
         lines.append(
             f"{s.name:<16} {s.TP:>4} {s.TN:>4} {s.FP:>4} {s.FN:>4} {s.ambiguous:>4} {_fmt(s.precision, 100):>7} "
             f"{_fmt(s.recall, 100):>7} {s.identifiable:>5} {_fmt(s.recall_identifiable, 100):>7} "
-            f"{_fmt(s.median_translation_error_m, 100):>9} "
+            f"{s.unique:>5} {_fmt(s.recall_unique, 100):>7} {_fmt(s.median_translation_error_m, 100):>9} "
             f"{_fmt(s.median_rotation_error_deg, 1, 3):>10} {_fmt(s.mean_ms, 1, 1):>9} {_fmt(s.median_ms, 1, 1):>8}"
         )
     return "\n".join(lines)

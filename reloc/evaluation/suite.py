@@ -17,12 +17,13 @@ from __future__ import annotations
 import math
 import time
 from dataclasses import dataclass, field, replace
+from types import SimpleNamespace
 from typing import Callable
 
 import numpy as np
 
-from reloc.evaluation.ambiguity import is_ambiguous
-from reloc.evaluation.metrics import Outcome, Summary, classify, identifiable, summarize
+from reloc.evaluation.ambiguity import is_ambiguous, scene_symmetries
+from reloc.evaluation.metrics import Outcome, Summary, classify, identifiable, summarize, twin_confirmed
 from reloc.mapping import MappingParams, PlaneMap, build_map, grow_submap
 from reloc.matching import MatchingParams, Relocalizer, ablation_params, scaled_to_sensor
 from reloc.planeset import PlaneSet
@@ -239,24 +240,27 @@ def make_queries(scene, spec: EvalSpec, source: Callable, mapping: MappingParams
 def evaluate_queries(relocalizer: Relocalizer, queries: list[Query], scene_name: str,
                      progress: Callable[[int], None] | None = None) -> list[Outcome]:
     """Relocalize each query in the map of ``scene_name``; queries of other scenes are negatives. A positive,
-    unambiguous query is also checked at its true pose (:meth:`Relocalizer.confirm`): whether it is identifiable
-    (:mod:`reloc.evaluation.metrics`)."""
+    unambiguous query is also checked at its true pose (:meth:`Relocalizer.confirm`): whether it is identifiable,
+    and if so whether a symmetric twin of that pose is confirmed too (:mod:`reloc.evaluation.metrics`)."""
+    symmetries = scene_symmetries(SimpleNamespace(name=scene_name))
     out = []
     for q in queries:
         res = relocalizer.locate(q.submap)
         positive = q.scene == scene_name
         errors = pose_error(res.T_map_cam, q.T_world_cam) if (positive and res.relocalized) else None
         label = classify(positive, q.ambiguous and positive, res.relocalized, errors)
-        ident, why = None, ""
+        ident, why, twin = None, "", None
         if positive and not q.ambiguous:
             ident, why = identifiable(relocalizer, q.submap, q.T_world_cam)
+            if ident:
+                twin = twin_confirmed(relocalizer, q.submap, q.T_world_cam, symmetries)
         out.append(Outcome(
             scene=scene_name, query=q.name, positive=positive, ambiguous=q.ambiguous and positive,
             status=res.status, reason=res.reason, label=label,
             translation_error_m=errors[0] if errors else math.nan, rotation_error_deg=errors[1] if errors else math.nan,
             total_ms=res.timings_ms.get("total", math.nan),
             timings_ms={**{k: v for k, v in res.timings_ms.items() if k != "total"}, **q.timings_ms},
-            counts=res.counts, identifiable=ident, identifiable_reason=why,
+            counts=res.counts, identifiable=ident, identifiable_reason=why, twin_confirmed=twin,
         ))
         if progress is not None:
             progress(1)
