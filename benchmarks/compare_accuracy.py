@@ -95,7 +95,8 @@ def main(argv=None) -> int:
             raise SystemExit(f"{pair!r}: expected BEFORE.json:AFTER.json")
         else:
             a, b = pair.split(":")
-        ra, rb = _load(a), _load(b)
+        ra = _load(a)
+        rb = ra if b == a else _load(b)
         out = {"before": a, "after": b, "commits": [ra.get("git", {}).get("commit"), rb.get("git", {}).get("commit")],
                "sources": {}}
         for s in sources:

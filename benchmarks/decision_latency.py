@@ -51,7 +51,6 @@ def main(argv=None) -> int:
 
     from reloc._numba import warm_up
     from reloc.evaluation.prepared_io import PreparedSuiteError, load_prepared
-    from reloc.evaluation.suite import _negatives
     from reloc.matching import MatchingParams
 
     try:
@@ -66,7 +65,7 @@ def main(argv=None) -> int:
     spec = prepared.spec
     work = []  # (scene, relocalizer per method, queries)
     for scene in spec.scenes:
-        qs = prepared.queries[scene] + _negatives(prepared.queries, scene, spec.negatives_per_scene)
+        qs = prepared.queries_in(scene)
         work.append((scene, {label: prepared.relocalizer(scene, p) for label, p in params.items()}, qs))
     # Warm-up: the kernels, then every matcher over the first scene's queries (caches).
     warm_up(("reloc.matching._kernels",))

@@ -171,7 +171,8 @@ def test_the_decision_latency_benchmark_times_every_query_of_a_saved_suite(saved
                  "--name", "dl"]) == 0
     res = json.loads((saved.parent / "dl.json").read_text())["results"]
     loaded, _ = load_prepared(saved)
-    n = sum(len(qs) + loaded.spec.negatives_per_scene for qs in loaded.queries.values())
+    n = sum(len(loaded.queries_in(scene)) for scene in loaded.spec.scenes)
+    assert n == sum(len(qs) + loaded.spec.negatives_per_scene for qs in loaded.queries.values())
     assert set(res) == {"ours", "ours with hidden_rival_credit=True"}
     for r in res.values():
         assert r["queries"] == n == 12

@@ -292,12 +292,17 @@ class Prepared:
         results = []
         for name in self.spec.scenes:
             reloc = self.relocalizer(name, matching)
-            qs = self.queries[name] + _negatives(self.queries, name, self.spec.negatives_per_scene)
+            qs = self.queries_in(name)
             desc = f"{label} {name}".strip() if label else f"{name}: relocalize"
             step = None if progress is None else (lambda n, _d=desc: progress(n, _d))
             results.append(SceneResult(name, len(self.maps[name]), self.map_seconds[name],
                                        evaluate_queries(reloc, qs, name, step)))
         return results
+
+    def queries_in(self, scene: str) -> list[Query]:
+        """The queries :meth:`evaluate` relocalizes in the map of ``scene``: its positives, then its negatives (from
+        the other scenes)."""
+        return self.queries[scene] + _negatives(self.queries, scene, self.spec.negatives_per_scene)
 
     def relocalizer(self, scene: str, matching: MatchingParams | None = None) -> Relocalizer:
         """A relocalizer in the map of ``scene`` with ``matching`` (its decision offsets scaled to the spec's
