@@ -245,6 +245,12 @@ class Relocalizer:
         if brute_force:
             self.index = with_dense_extents(self.index, planes)
 
+    @property
+    def _map_knows_free_space(self) -> bool:
+        """Whether the map holds known free space: only then are rivals credited for planes it knows nothing about
+        (``optimistic_rivals``)."""
+        return len(self.index.free_keys) > 0
+
     # -- public steps --------------------------------------------------------------------------------------------
 
     def prepare(self, submap: PlaneSet) -> tuple[PlaneSet, np.ndarray, np.ndarray, np.ndarray]:
@@ -483,7 +489,8 @@ class Relocalizer:
         v = replace(sharp, n_matched=v.n_matched, explained=v.explained, unknown=v.unknown, passed=v.passed)
         hidden = None
         if p.occlusion:
-            exact = p.hidden_rival_credit and p.optimistic_rivals
+            # The exact shares cost a full count; only rivals that get credit use them (see :meth:`_decide`).
+            exact = p.hidden_rival_credit and p.optimistic_rivals and self._map_knows_free_space
             frac = self.mark_hidden(used, vs_ptr, vs_pts, R, t, v.state, exact=exact)
             hidden = frac[v.passed] if exact else None
         blocked = self.path_blocked(used, R, t) if p.path_test else np.zeros(len(leaders), dtype=bool)
@@ -580,7 +587,7 @@ class Relocalizer:
         decision = decide(hyps.R, hyps.t, hyps.match, hyps.over, hyps.n_matched, hyps.explained, self.params,
                           min_matched=min_matched, state=hyps.state, areas=used.areas, free_frac=hyps.free_frac,
                           unknown=hyps.unknown, blocked=hyps.blocked(), hidden_frac=hyps.hidden_frac,
-                          optimistic=len(self.index.free_keys) > 0, timings_ms=part, modes=modes)
+                          optimistic=self._map_knows_free_space, timings_ms=part, modes=modes)
         timings["decide.weights"] += part.get("weights", 0.0)
         timings["decide.density"] += part.get("density", 0.0)
         return decision
