@@ -115,6 +115,24 @@ def test_labelled_pixels_within_noise_bound(noise):
         assert np.std(err[far]) > 2.0 * np.std(err[near])
 
 
+def test_flying_pixel_candidates_are_the_far_side_of_every_jump():
+    """The kernel's candidates against the same test in NumPy (a pixel whose nearest 4-neighbour is nearer by more
+    than ``discontinuity_rel`` of its depth; NaN is no surface), on a rendered frame with holes cut into it."""
+    from sim import _noise_kernels as K
+
+    depth, _ = render(make_scene("office"), SMALL, pose_from(4.5, 3.5, 1.6, np.radians(-140), np.radians(-20)))
+    z = np.ascontiguousarray(depth, dtype=np.float32)
+    z[10:14, 20:60] = np.nan
+    z[:, -1] = np.nan
+    model = make_noise("kinect")
+    out = np.zeros(z.shape, np.bool_)
+    n = K.flying_candidates(z, float(model.discontinuity_rel), out)
+    near = model.nearer_neighbour(z)
+    want = np.isfinite(z) & (near < z.astype(np.float64) * (1.0 - model.discontinuity_rel))
+    assert n == want.sum() > 100
+    np.testing.assert_array_equal(out, want)
+
+
 def test_noise_has_dropouts_and_flying_pixels():
     scene = make_scene("office")
     intr = SMALL
