@@ -105,6 +105,15 @@ def _helper_share(warmups: list) -> list:
     return [fn for fn in warmups if _package(fn.__module__) != keep]
 
 
+def helper_env() -> dict:
+    """The environment of a helper process: this one's (``NUMBA_CACHE_DIR`` as this process chose it;
+    :func:`configure_cache_dir` sets it when it must), with this package first on the path, as this process imported
+    it (a script may have put its checkout on ``sys.path``)."""
+    env = dict(os.environ)
+    env["PYTHONPATH"] = os.pathsep.join(p for p in (str(_PACKAGE_ROOT), env.get("PYTHONPATH", "")) if p)
+    return env
+
+
 def _start_helper(share: list) -> subprocess.Popen | None:
     """A process that imports the modules of ``share`` and runs their warm-ups, filling the cache; None when it
     cannot start (then this process compiles them itself, as without a helper)."""
@@ -116,11 +125,8 @@ def _start_helper(share: list) -> subprocess.Popen | None:
             f"want = {names!r}\n"
             "for fn in list(_numba._WARMUPS):\n"
             "    if (fn.__module__, fn.__name__) in want: fn()\n")
-    env = dict(os.environ)  # NUMBA_CACHE_DIR as this process chose it (configure_cache_dir sets it when it must)
-    # This package first, as this process imported it (a script may have put its checkout on sys.path).
-    env["PYTHONPATH"] = os.pathsep.join(p for p in (str(_PACKAGE_ROOT), env.get("PYTHONPATH", "")) if p)
     try:
-        return subprocess.Popen([sys.executable, "-c", code], env=env, stdin=subprocess.DEVNULL,
+        return subprocess.Popen([sys.executable, "-c", code], env=helper_env(), stdin=subprocess.DEVNULL,
                                 stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     except OSError:
         return None

@@ -8,9 +8,15 @@ queries from another scene, with plane extraction on every frame (or the simulat
 
 from __future__ import annotations
 
+import json
 import math
+import os
+import subprocess
+import sys
+import tempfile
 import time
 from dataclasses import asdict, dataclass, replace
+from pathlib import Path
 from typing import Callable
 
 import numpy as np
@@ -53,6 +59,86 @@ def _say_above_progress(line: str) -> None:
     tqdm.write(line, file=sys.stderr)
 
 
+def _plan(spec: DemoSpec, cfg):
+    """The suite spec of the demo's queries and map, and its extraction (None for ground-truth planes) and mapping
+    parameters from ``cfg``."""
+    from reloc.evaluation.suite import EvalSpec, extraction_for_sensor
+    from reloc.mapping import MappingParams
+
+    base = EvalSpec(scenes=(spec.scene,), noise=spec.noise, camera=spec.camera, width=spec.width, height=spec.height,
+                    map_trajectories=spec.map_trajectories, map_seed=spec.seed, queries_per_kind=spec.queries_per_kind,
+                    query_seed=100 + spec.seed, window_frames=spec.window_frames, window_stride=spec.window_stride,
+                    window_max_frames=spec.window_max_frames,
+                    query_spacing_frames=max(60, spec.window_stride * spec.window_frames + 1),
+                    plane_source=spec.plane_source)
+    extraction = None
+    if spec.plane_source == "extraction":
+        from reloc.extraction import ExtractionParams
+
+        extraction = extraction_for_sensor(base, ExtractionParams.from_config(cfg))
+    return base, extraction, MappingParams.from_config(cfg)
+
+
+def negative_queries(spec: DemoSpec, base, extraction, mapping) -> list:
+    """The demo's negative queries: ``spec.negatives`` windows of the other scene (its robot and hand-held
+    trajectories, seeds of their own)."""
+    from sim.scenes import make_scene
+
+    from reloc.evaluation.suite import make_plane_source, make_queries
+
+    other = make_scene(spec.negative_scene)
+    neg_spec = replace(base, queries_per_kind=max(1, math.ceil(spec.negatives / len(base.query_kinds))),
+                       query_seed=200 + spec.seed)
+    return make_queries(other, neg_spec, make_plane_source(spec.plane_source, other, extraction=extraction),
+                        mapping)[: spec.negatives]
+
+
+def _start_negatives_helper(spec: DemoSpec, cfg, directory: Path) -> subprocess.Popen | None:
+    """A process making the negative queries into ``directory / "negatives.npz"`` (:func:`_helper_main`), or None
+    with fewer than two usable cores, no negatives, ``RELOC_DEMO_HELPER=0`` in the environment, or when it cannot
+    start."""
+    from reloc import _numba
+
+    if spec.negatives <= 0 or os.environ.get("RELOC_DEMO_HELPER", "1") == "0" or _numba._usable_cores() < 2:
+        return None
+    job = directory / "job.json"
+    job.write_text(json.dumps({"spec": asdict(spec), "config": cfg.model_dump(mode="json"),
+                               "out": str(directory / "negatives.npz")}), encoding="utf-8")
+    code = "import sys\nfrom reloc.demo import _helper_main\nsys.exit(_helper_main(sys.argv[1]))\n"
+    try:
+        return subprocess.Popen([sys.executable, "-c", code, str(job)], env=_numba.helper_env(),
+                                stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    except OSError:
+        return None
+
+
+def _negatives_from_helper(helper: subprocess.Popen | None, directory: Path) -> list | None:
+    """The helper's negative queries once it has finished, or None when there is no helper or it failed (then the
+    caller makes them itself)."""
+    from reloc.evaluation.prepared_io import PreparedSuiteError, load_queries
+
+    if helper is None or helper.wait() != 0:
+        return None
+    try:
+        return load_queries(directory / "negatives.npz")
+    except PreparedSuiteError:
+        return None
+
+
+def _helper_main(job_path: str) -> int:
+    """The helper process of :func:`_start_negatives_helper`: reads its job (the demo spec and config as JSON),
+    makes the negative queries and writes them (:func:`reloc.evaluation.prepared_io.save_queries`)."""
+    from reloc.config import Config
+    from reloc.evaluation.prepared_io import save_queries
+
+    job = json.loads(Path(job_path).read_text(encoding="utf-8"))
+    spec = DemoSpec(**{k: (tuple(tuple(x) for x in v) if k == "map_trajectories" else v)
+                       for k, v in job["spec"].items()})
+    base, extraction, mapping = _plan(spec, Config.model_validate(job["config"]))
+    save_queries(job["out"], negative_queries(spec, base, extraction, mapping))
+    return 0
+
+
 def run_demo(spec: DemoSpec | None = None, cfg=None, *, progress: Callable[[str, int, int], None] | None = None,
              keep: dict | None = None) -> dict:
     """Run the demo; ``progress(step, done, total)`` is called as it goes. Returns the figures as a JSON-able dict:
@@ -66,14 +152,12 @@ def run_demo(spec: DemoSpec | None = None, cfg=None, *, progress: Callable[[str,
     from reloc.config import Config
     from reloc.evaluation.metrics import summarize
     from reloc.evaluation.suite import (
-        EvalSpec,
         build_scene_map,
         evaluate_queries,
         extraction_for_sensor,
         make_plane_source,
         make_queries,
     )
-    from reloc.mapping import MappingParams
     from reloc.matching import MatchingParams, Relocalizer, scaled_to_sensor
 
     spec = spec or DemoSpec()
@@ -92,43 +176,38 @@ def run_demo(spec: DemoSpec | None = None, cfg=None, *, progress: Callable[[str,
     phases["compile_s"] = time.perf_counter() - t0
     step("compile", 1, 1)
 
-    extraction = None
-    if spec.plane_source == "extraction":
-        from reloc.extraction import ExtractionParams
-
-        extraction = ExtractionParams.from_config(cfg)
-    mapping = MappingParams.from_config(cfg)
-    base = EvalSpec(scenes=(spec.scene,), noise=spec.noise, camera=spec.camera, width=spec.width, height=spec.height,
-                    map_trajectories=spec.map_trajectories, map_seed=spec.seed, queries_per_kind=spec.queries_per_kind,
-                    query_seed=100 + spec.seed, window_frames=spec.window_frames, window_stride=spec.window_stride,
-                    window_max_frames=spec.window_max_frames,
-                    query_spacing_frames=max(60, spec.window_stride * spec.window_frames + 1),
-                    plane_source=spec.plane_source)
+    base, extraction, mapping = _plan(spec, cfg)
     scene = make_scene(spec.scene)
-    if extraction is not None:
-        extraction = extraction_for_sensor(base, extraction)
     # The decision's offsets follow the simulated sensor's noise law, as for a live camera (and as reloc eval does).
     sensor = extraction_for_sensor(base)
     matching = scaled_to_sensor(MatchingParams.from_config(cfg), sensor.noise_model, sensor.noise_coeff)
     source = make_plane_source(spec.plane_source, scene, extraction=extraction)
 
-    t = time.perf_counter()
-    step("map", 0, 1)
-    plane_map = build_scene_map(scene, base, source, mapping)
-    phases["map_s"] = time.perf_counter() - t
-    step("map", 1, 1)
+    with tempfile.TemporaryDirectory(prefix="reloc-demo-") as tmp:
+        # The negative queries are made by a helper process on the second core while this one builds the map and
+        # the positive queries (the same code and seeds: the same queries); without one, here after the positives.
+        helper = _start_negatives_helper(spec, cfg, Path(tmp))
+        try:
+            t = time.perf_counter()
+            step("map", 0, 1)
+            plane_map = build_scene_map(scene, base, source, mapping)
+            phases["map_s"] = time.perf_counter() - t
+            step("map", 1, 1)
 
-    t = time.perf_counter()
-    step("queries", 0, 2)
-    positives = make_queries(scene, base, source, mapping)
-    step("queries", 1, 2)
-    other = make_scene(spec.negative_scene)
-    neg_spec = replace(base, queries_per_kind=max(1, math.ceil(spec.negatives / len(base.query_kinds))),
-                       query_seed=200 + spec.seed)
-    negatives = make_queries(other, neg_spec, make_plane_source(spec.plane_source, other, extraction=extraction),
-                             mapping)[: spec.negatives]
-    phases["queries_s"] = time.perf_counter() - t
-    step("queries", 2, 2)
+            t = time.perf_counter()
+            step("queries", 0, 2)
+            positives = make_queries(scene, base, source, mapping)
+            step("queries", 1, 2)
+            negatives = _negatives_from_helper(helper, Path(tmp))
+            by_helper = negatives is not None
+            if negatives is None:
+                negatives = negative_queries(spec, base, extraction, mapping)
+            phases["queries_s"] = time.perf_counter() - t
+            step("queries", 2, 2)
+        finally:
+            if helper is not None and helper.poll() is None:
+                helper.kill()
+                helper.wait()
 
     t = time.perf_counter()
     reloc = Relocalizer(plane_map, matching)
@@ -154,7 +233,7 @@ def run_demo(spec: DemoSpec | None = None, cfg=None, *, progress: Callable[[str,
         "map": {"planes": len(plane_map), "keyframes": plane_map.meta.get("keyframe_count"),
                 "free_space_m3": plane_map.summary()["free_space_m3"], "index_ms": round(reloc.index.build_ms, 3)},
         "queries": {"positive": len(positives), "negative": len(negatives),
-                    "ambiguous": sum(o.ambiguous for o in outcomes)},
+                    "ambiguous": sum(o.ambiguous for o in outcomes), "negatives_by_helper": by_helper},
         "counts": {"TP": s.TP, "TN": s.TN, "FP": s.FP, "FN": s.FN},
         "precision": None if not math.isfinite(s.precision) else round(s.precision, 4),
         "recall": None if not math.isfinite(s.recall) else round(s.recall, 4),

@@ -180,6 +180,39 @@ def test_demo_runs_and_reports(tmp_path, monkeypatch, capsys):
     assert np.isfinite(result["phases_s"]["total_s"])
 
 
+def test_the_demos_negative_queries_made_by_a_helper_process_are_the_same(monkeypatch):
+    """With two usable cores the negative queries are made by a helper process while the map and the positive
+    queries are made here: the same queries (same code and seeds), so the same outcomes as without it
+    (``RELOC_DEMO_HELPER=0``); a helper that fails leaves them to this process."""
+    import subprocess
+    import sys
+
+    import reloc.demo
+    from reloc import _numba
+    from reloc.demo import DemoSpec, run_demo
+
+    monkeypatch.setattr(_numba, "_usable_cores", lambda: 2)  # a helper even on a one-core runner
+    spec = DemoSpec(map_trajectories=(("robot", 300), ("handheld", 300)), queries_per_kind=1, negatives=3,
+                    window_frames=10, width=160, height=120)
+    runs = {}
+    for name, env in (("helper", "1"), ("alone", "0")):
+        monkeypatch.setenv("RELOC_DEMO_HELPER", env)
+        runs[name] = run_demo(spec)
+    monkeypatch.setenv("RELOC_DEMO_HELPER", "1")
+    monkeypatch.setattr(reloc.demo, "_start_negatives_helper", lambda *a: subprocess.Popen(
+        [sys.executable, "-c", "raise SystemExit(3)"]))
+    runs["failed helper"] = run_demo(spec)
+    assert [r["queries"]["negatives_by_helper"] for r in runs.values()] == [True, False, False]
+
+    def key(result):
+        return [(o["query"], o["label"], o["reason"], o["translation_error_m"], o["counts"])
+                for o in result["outcomes"]]
+
+    assert runs["helper"]["queries"]["negative"] == 3
+    assert key(runs["helper"]) == key(runs["alone"]) == key(runs["failed helper"])
+    assert sum(o["label"] == "TN" for o in runs["helper"]["outcomes"]) == 3
+
+
 def test_demo_names_an_unknown_scene_before_any_work():
     from reloc.demo import DemoSpec, run_demo
 

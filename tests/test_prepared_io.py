@@ -5,7 +5,13 @@ import json
 import numpy as np
 import pytest
 
-from reloc.evaluation.prepared_io import PreparedSuiteError, load_prepared, save_prepared
+from reloc.evaluation.prepared_io import (
+    PreparedSuiteError,
+    load_prepared,
+    load_queries,
+    save_prepared,
+    save_queries,
+)
 from reloc.evaluation.suite import prepare_suite, quick_spec
 
 
@@ -181,3 +187,37 @@ def test_the_decision_latency_benchmark_times_every_query_of_a_saved_suite(saved
     with pytest.raises(SystemExit):
         main(["--prepared", str(saved), "--variant", "no_such_setting=1"])
     assert "no_such_setting" in capsys.readouterr().err
+
+
+def test_queries_saved_into_one_file_load_back_as_they_were(prepared, tmp_path):
+    """``save_queries`` / ``load_queries`` (how ``reloc demo``'s helper hands its queries over, without pickle):
+    every field and array as it was; a truncated file, a file that is not an archive and another format version
+    are named."""
+    queries = prepared.queries["office"]
+    path = save_queries(tmp_path / "q.npz", queries)
+    back = load_queries(path)
+    assert len(back) == len(queries) >= 4
+    for a, b in zip(queries, back):
+        assert (a.scene, a.name, a.ambiguous, a.frames_left_out, a.window_frames, a.timings_ms) == (
+            b.scene, b.name, b.ambiguous, b.frames_left_out, b.window_frames, b.timings_ms)
+        np.testing.assert_array_equal(a.T_world_cam, b.T_world_cam)
+        for key, value in a.submap.to_arrays().items():
+            np.testing.assert_array_equal(value, b.submap.to_arrays()[key], err_msg=key)
+    assert load_queries(save_queries(tmp_path / "none.npz", [])) == []
+    data = path.read_bytes()
+    (tmp_path / "cut.npz").write_bytes(data[: len(data) // 2])
+    with pytest.raises(PreparedSuiteError, match=r"cut\.npz: unreadable queries"):
+        load_queries(tmp_path / "cut.npz")
+    (tmp_path / "pickle.npz").write_bytes(b"\x80\x04K\x01.")
+    with pytest.raises(PreparedSuiteError, match=r"pickle\.npz.*not an \.npz \(zip\) archive"):
+        load_queries(tmp_path / "pickle.npz")
+    with pytest.raises(PreparedSuiteError, match=r"nowhere\.npz: missing"):
+        load_queries(tmp_path / "nowhere.npz")
+    with np.load(path, allow_pickle=False) as npz:
+        arrays = {k: npz[k] for k in npz.files}
+    listing = json.loads(str(arrays["listing"]))
+    listing["format_version"] = 99
+    arrays["listing"] = np.array(json.dumps(listing))
+    np.savez(tmp_path / "old.npz", **arrays)
+    with pytest.raises(PreparedSuiteError, match="format version 99"):
+        load_queries(tmp_path / "old.npz")

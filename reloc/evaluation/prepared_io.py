@@ -28,7 +28,7 @@ from reloc.atomic import atomic_write, atomic_write_text
 from reloc.mapping import MapFileError, load_map, save_map
 
 __all__ = ["PREPARED_FORMAT", "PREPARED_FORMAT_VERSION", "PreparedSuiteError", "built_with", "load_prepared",
-           "mismatch", "save_prepared"]
+           "load_queries", "mismatch", "save_prepared", "save_queries"]
 
 PREPARED_FORMAT = "voxelplane-reloc prepared suite"
 PREPARED_FORMAT_VERSION = 2  # 2: submaps carry their window's camera positions (viewpoints)
@@ -53,19 +53,83 @@ def save_prepared(directory, prepared, meta: dict | None = None) -> Path:
              "meta": dict(meta or {}), "scenes": {}}
     for name in prepared.spec.scenes:
         save_map(directory / "maps" / f"{name}.npz", prepared.maps[name])
-        arrays, listed = {}, []
-        for i, q in enumerate(prepared.queries[name]):
-            arrays.update(q.submap.to_arrays(f"q{i}_"))
-            arrays[f"q{i}_T_world_cam"] = np.asarray(q.T_world_cam, dtype=np.float64)
-            listed.append({"scene": q.scene, "name": q.name, "ambiguous": bool(q.ambiguous), "frame": q.submap.frame,
-                           "timings_ms": {k: float(v) for k, v in q.timings_ms.items()},
-                           "frames_left_out": int(q.frames_left_out), "window_frames": int(q.window_frames)})
+        arrays, listed = _query_arrays(prepared.queries[name])
         with atomic_write(directory / "queries" / f"{name}.npz", "wb") as fh:
             np.savez_compressed(fh, **arrays)
         index["scenes"][name] = {"map_seconds": float(prepared.map_seconds[name]), "queries": listed}
     path = directory / "suite.json"
     atomic_write_text(path, json.dumps(index, indent=1, sort_keys=True) + "\n")
     return path
+
+
+def _query_arrays(queries) -> tuple[dict, list]:
+    """The arrays of ``queries`` (submaps and ground-truth poses, keys ``q<i>_...``) and their JSON listing."""
+    arrays, listed = {}, []
+    for i, q in enumerate(queries):
+        arrays.update(q.submap.to_arrays(f"q{i}_"))
+        arrays[f"q{i}_T_world_cam"] = np.asarray(q.T_world_cam, dtype=np.float64)
+        listed.append({"scene": q.scene, "name": q.name, "ambiguous": bool(q.ambiguous), "frame": q.submap.frame,
+                       "timings_ms": {k: float(v) for k, v in q.timings_ms.items()},
+                       "frames_left_out": int(q.frames_left_out), "window_frames": int(q.window_frames)})
+    return arrays, listed
+
+
+def _read_npz(path: Path) -> dict:
+    with open(path, "rb") as fh:
+        if fh.read(4) != b"PK\x03\x04":  # else numpy calls any non-zip file "pickled data"
+            raise ValueError("not an .npz (zip) archive")
+    with np.load(path, allow_pickle=False) as npz:
+        return {k: npz[k] for k in npz.files}
+
+
+def _queries_from(arrays: dict, listed: list) -> list:
+    """The queries that :func:`_query_arrays` turned into ``arrays`` and ``listed`` (ValueError, KeyError or
+    TypeError when they do not fit together)."""
+    from reloc.evaluation.suite import Query
+    from reloc.planeset import PlaneSet
+
+    qs = []
+    for i, q in enumerate(listed):
+        submap = PlaneSet.from_arrays(arrays, f"q{i}_", frame=str(q["frame"]))
+        T = np.asarray(arrays[f"q{i}_T_world_cam"], dtype=np.float64)
+        if T.shape != (4, 4):
+            raise ValueError(f"query {i}: T_world_cam of shape {T.shape}, expected (4, 4)")
+        qs.append(Query(str(q["scene"]), str(q["name"]), T, submap, bool(q["ambiguous"]),
+                        {str(k): float(v) for k, v in q["timings_ms"].items()}, int(q["frames_left_out"]),
+                        int(q.get("window_frames", 0))))
+    return qs
+
+
+def save_queries(path, queries) -> Path:
+    """Write ``queries`` (:class:`~reloc.evaluation.suite.Query`) into one ``.npz`` file, atomically: their arrays
+    as in a prepared suite, and their listing as JSON text in ``listing``. For handing queries from one process to
+    another without pickle (``reloc demo``'s helper)."""
+    path = Path(path)
+    arrays, listed = _query_arrays(queries)
+    arrays["listing"] = np.array(json.dumps({"format": PREPARED_FORMAT, "format_version": PREPARED_FORMAT_VERSION,
+                                             "queries": listed}))
+    with atomic_write(path, "wb") as fh:
+        np.savez(fh, **arrays)
+    return path
+
+
+def load_queries(path) -> list:
+    """The queries :func:`save_queries` wrote into ``path``; :class:`PreparedSuiteError` names the file and the
+    problem when it cannot read them."""
+    path = Path(path)
+    try:
+        arrays = _read_npz(path)
+        index = json.loads(str(arrays.pop("listing")))
+        if not isinstance(index, dict) or index.get("format") != PREPARED_FORMAT:
+            raise ValueError(f"format {index.get('format') if isinstance(index, dict) else index!r}, expected "
+                             f"{PREPARED_FORMAT!r}")
+        if index.get("format_version") != PREPARED_FORMAT_VERSION:
+            raise ValueError(f"format version {index.get('format_version')!r}, expected {PREPARED_FORMAT_VERSION}")
+        return _queries_from(arrays, index["queries"])
+    except FileNotFoundError:
+        raise PreparedSuiteError(path, "missing") from None
+    except (OSError, KeyError, TypeError, ValueError, EOFError, zipfile.BadZipFile, zlib.error) as exc:
+        raise PreparedSuiteError(path, f"unreadable queries ({exc!r})") from None
 
 
 def _spec_from(data: dict, path: Path):
@@ -89,8 +153,7 @@ def _spec_from(data: dict, path: Path):
 
 def load_prepared(directory):
     """Read a directory written by :func:`save_prepared`: returns ``(prepared, meta)``."""
-    from reloc.evaluation.suite import Prepared, Query
-    from reloc.planeset import PlaneSet
+    from reloc.evaluation.suite import Prepared
 
     directory = Path(directory)
     path = directory / "suite.json"
@@ -124,20 +187,7 @@ def load_prepared(directory):
         entry = scenes[name]
         try:
             seconds[name] = float(entry["map_seconds"])
-            with open(qpath, "rb") as fh:
-                if fh.read(4) != b"PK\x03\x04":  # else numpy calls any non-zip file "pickled data"
-                    raise ValueError("not an .npz (zip) archive")
-            with np.load(qpath, allow_pickle=False) as npz:
-                arrays = {k: npz[k] for k in npz.files}
-            qs = []
-            for i, q in enumerate(entry["queries"]):
-                submap = PlaneSet.from_arrays(arrays, f"q{i}_", frame=str(q["frame"]))
-                T = np.asarray(arrays[f"q{i}_T_world_cam"], dtype=np.float64)
-                if T.shape != (4, 4):
-                    raise ValueError(f"query {i}: T_world_cam of shape {T.shape}, expected (4, 4)")
-                qs.append(Query(str(q["scene"]), str(q["name"]), T, submap, bool(q["ambiguous"]),
-                                {str(k): float(v) for k, v in q["timings_ms"].items()}, int(q["frames_left_out"]),
-                                int(q.get("window_frames", 0))))
+            qs = _queries_from(_read_npz(qpath), entry["queries"])
         except FileNotFoundError:
             raise PreparedSuiteError(qpath, "missing") from None
         except (OSError, KeyError, TypeError, ValueError, EOFError, zipfile.BadZipFile, zlib.error) as exc:
