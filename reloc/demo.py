@@ -11,6 +11,7 @@ from __future__ import annotations
 import json
 import math
 import os
+import shutil
 import subprocess
 import sys
 import tempfile
@@ -93,31 +94,36 @@ def negative_queries(spec: DemoSpec, base, extraction, mapping) -> list:
                         mapping)[: spec.negatives]
 
 
-def _start_negatives_helper(spec: DemoSpec, cfg, directory: Path) -> subprocess.Popen | None:
-    """A process making the negative queries into ``directory / "negatives.npz"`` (:func:`_helper_main`), or None
-    with fewer than two usable cores, no negatives, ``RELOC_DEMO_HELPER=0`` in the environment, or when it cannot
-    start."""
+def _start_negatives_helper(spec: DemoSpec, cfg) -> tuple[subprocess.Popen | None, Path | None]:
+    """A process making the negative queries into ``negatives.npz`` of a new temporary directory
+    (:func:`_helper_main`), and that directory (the caller removes it); ``(None, None)`` with fewer than two usable
+    cores, no negatives or ``RELOC_DEMO_HELPER=0`` in the environment, and when it cannot start (no temporary
+    directory, no process)."""
     from reloc import _numba
 
     if spec.negatives <= 0 or os.environ.get("RELOC_DEMO_HELPER", "1") == "0" or _numba._usable_cores() < 2:
-        return None
-    job = directory / "job.json"
-    job.write_text(json.dumps({"spec": asdict(spec), "config": cfg.model_dump(mode="json"),
-                               "out": str(directory / "negatives.npz")}), encoding="utf-8")
+        return None, None
     code = "import sys\nfrom reloc.demo import _helper_main\nsys.exit(_helper_main(sys.argv[1]))\n"
+    tmp = None
     try:
+        tmp = Path(tempfile.mkdtemp(prefix="reloc-demo-"))
+        job = tmp / "job.json"
+        job.write_text(json.dumps({"spec": asdict(spec), "config": cfg.model_dump(mode="json"),
+                                   "out": str(tmp / "negatives.npz")}), encoding="utf-8")
         return subprocess.Popen([sys.executable, "-c", code, str(job)], env=_numba.helper_env(),
-                                stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+                                stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL), tmp
     except OSError:
-        return None
+        if tmp is not None:
+            shutil.rmtree(tmp, ignore_errors=True)
+        return None, None
 
 
-def _negatives_from_helper(helper: subprocess.Popen | None, directory: Path) -> list | None:
+def _negatives_from_helper(helper: subprocess.Popen | None, directory: Path | None) -> list | None:
     """The helper's negative queries once it has finished, or None when there is no helper or it failed (then the
     caller makes them itself)."""
     from reloc.evaluation.prepared_io import PreparedSuiteError, load_queries
 
-    if helper is None or helper.wait() != 0:
+    if helper is None or directory is None or helper.wait() != 0:
         return None
     try:
         return load_queries(directory / "negatives.npz")
@@ -183,31 +189,32 @@ def run_demo(spec: DemoSpec | None = None, cfg=None, *, progress: Callable[[str,
     matching = scaled_to_sensor(MatchingParams.from_config(cfg), sensor.noise_model, sensor.noise_coeff)
     source = make_plane_source(spec.plane_source, scene, extraction=extraction)
 
-    with tempfile.TemporaryDirectory(prefix="reloc-demo-") as tmp:
-        # The negative queries are made by a helper process on the second core while this one builds the map and
-        # the positive queries (the same code and seeds: the same queries); without one, here after the positives.
-        helper = _start_negatives_helper(spec, cfg, Path(tmp))
-        try:
-            t = time.perf_counter()
-            step("map", 0, 1)
-            plane_map = build_scene_map(scene, base, source, mapping)
-            phases["map_s"] = time.perf_counter() - t
-            step("map", 1, 1)
+    # The negative queries are made by a helper process on the second core while this one builds the map and the
+    # positive queries (the same code and seeds: the same queries); without one, here after the positives.
+    helper, tmp = _start_negatives_helper(spec, cfg)
+    try:
+        t = time.perf_counter()
+        step("map", 0, 1)
+        plane_map = build_scene_map(scene, base, source, mapping)
+        phases["map_s"] = time.perf_counter() - t
+        step("map", 1, 1)
 
-            t = time.perf_counter()
-            step("queries", 0, 2)
-            positives = make_queries(scene, base, source, mapping)
-            step("queries", 1, 2)
-            negatives = _negatives_from_helper(helper, Path(tmp))
-            by_helper = negatives is not None
-            if negatives is None:
-                negatives = negative_queries(spec, base, extraction, mapping)
-            phases["queries_s"] = time.perf_counter() - t
-            step("queries", 2, 2)
-        finally:
-            if helper is not None and helper.poll() is None:
-                helper.kill()
-                helper.wait()
+        t = time.perf_counter()
+        step("queries", 0, 2)
+        positives = make_queries(scene, base, source, mapping)
+        step("queries", 1, 2)
+        negatives = _negatives_from_helper(helper, tmp)
+        by_helper = negatives is not None
+        if negatives is None:
+            negatives = negative_queries(spec, base, extraction, mapping)
+        phases["queries_s"] = time.perf_counter() - t
+        step("queries", 2, 2)
+    finally:
+        if helper is not None and helper.poll() is None:
+            helper.kill()
+            helper.wait()
+        if tmp is not None:
+            shutil.rmtree(tmp, ignore_errors=True)
 
     t = time.perf_counter()
     reloc = Relocalizer(plane_map, matching)

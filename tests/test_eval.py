@@ -199,8 +199,8 @@ def test_the_demos_negative_queries_made_by_a_helper_process_are_the_same(monkey
         monkeypatch.setenv("RELOC_DEMO_HELPER", env)
         runs[name] = run_demo(spec)
     monkeypatch.setenv("RELOC_DEMO_HELPER", "1")
-    monkeypatch.setattr(reloc.demo, "_start_negatives_helper", lambda *a: subprocess.Popen(
-        [sys.executable, "-c", "raise SystemExit(3)"]))
+    monkeypatch.setattr(reloc.demo, "_start_negatives_helper", lambda *a: (subprocess.Popen(
+        [sys.executable, "-c", "raise SystemExit(3)"]), None))
     runs["failed helper"] = run_demo(spec)
     assert [r["queries"]["negatives_by_helper"] for r in runs.values()] == [True, False, False]
 
@@ -211,6 +211,31 @@ def test_the_demos_negative_queries_made_by_a_helper_process_are_the_same(monkey
     assert runs["helper"]["queries"]["negative"] == 3
     assert key(runs["helper"]) == key(runs["alone"]) == key(runs["failed helper"])
     assert sum(o["label"] == "TN" for o in runs["helper"]["outcomes"]) == 3
+
+
+def test_the_demo_starts_no_helper_where_it_cannot(monkeypatch):
+    """No helper with one usable core, with ``RELOC_DEMO_HELPER=0``, without negatives, or when no temporary
+    directory can be made (then nothing is left behind and the demo makes the negatives itself)."""
+    import tempfile
+
+    from reloc import _numba
+    from reloc.config import Config
+    from reloc.demo import DemoSpec, _start_negatives_helper
+
+    monkeypatch.setenv("RELOC_DEMO_HELPER", "1")
+    monkeypatch.setattr(_numba, "_usable_cores", lambda: 1)
+    assert _start_negatives_helper(DemoSpec(), Config()) == (None, None)
+    monkeypatch.setattr(_numba, "_usable_cores", lambda: 2)
+    assert _start_negatives_helper(DemoSpec(negatives=0), Config()) == (None, None)
+    monkeypatch.setenv("RELOC_DEMO_HELPER", "0")
+    assert _start_negatives_helper(DemoSpec(), Config()) == (None, None)
+    monkeypatch.setenv("RELOC_DEMO_HELPER", "1")
+
+    def no_room(*args, **kwargs):
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(tempfile, "mkdtemp", no_room)
+    assert _start_negatives_helper(DemoSpec(), Config()) == (None, None)
 
 
 def test_demo_names_an_unknown_scene_before_any_work():
