@@ -6,11 +6,11 @@ Each run is a fresh ``python -m reloc.cli demo --json FILE`` process, as a user 
 run gets an empty ``NUMBA_CACHE_DIR`` of its own; the warm runs reuse it. Side by side, the baselines: a cold run and
 warm runs with the helper processes switched off (``RELOC_NUMBA_HELPER=0``: every kernel compiled in the demo's own
 process, as before 2026-11-28 22:30 UTC; ``RELOC_DEMO_HELPER=0``: the negative queries made after the positive ones in
-the demo's process, as before 2026-11-30). Otherwise the reference is the budget, not another program: nothing else does this job (the
-same demo on the simulator's ground-truth planes, ``--source oracle``, took 141 s warm on 2026-11-28, 38 s of it
-mapping and 101 s making the queries against 4 and 8 s with extraction, and measures nothing the user runs). The
-demo's own phase times (``phases_s``: compile, map, queries, relocalize) and its counts (TP, TN, FP, FN) come from its
-JSON; the demo is seeded, so every run must give the same counts (``counts_agree``).
+the demo's process, as before 2026-11-30). Otherwise the reference is the budget, not another program: nothing else
+does this job (the same demo on the simulator's ground-truth planes, ``--source oracle``, took 141 s warm on
+2026-11-28, 38 s of it mapping and 101 s making the queries against 4 and 8 s with extraction, and measures nothing
+the user runs). The demo's own phase times (``phases_s``: compile, map, queries, relocalize) and its counts (TP, TN,
+FP, FN) come from its JSON; the demo is seeded, so every run must give the same counts (``counts_agree``).
 
     python benchmarks/demo_time.py [--warm-runs 3]
 Writes benchmarks/results/demo_time.json.

@@ -3,7 +3,9 @@
 :func:`run_demo` is the whole demo as a function returning its figures (the ``reloc demo`` command prints them and
 writes them as JSON). It uses the evaluation suite's steps (:mod:`reloc.evaluation.suite`) on one scene: the map
 from a robot tour and a hand-held walk, positive queries from other trajectories of the same scene, negative
-queries from another scene, with plane extraction on every frame (or the simulator's ground-truth planes).
+queries from another scene, with plane extraction on every frame (or the simulator's ground-truth planes). With two
+usable cores, a helper process makes the negative queries while the demo's process builds the map and the positive
+queries (``RELOC_DEMO_HELPER=0``: all in one process; the outcomes are the same).
 """
 
 from __future__ import annotations
@@ -80,7 +82,7 @@ def _plan(spec: DemoSpec, cfg):
     return base, extraction, MappingParams.from_config(cfg)
 
 
-def negative_queries(spec: DemoSpec, base, extraction, mapping) -> list:
+def _negative_queries(spec: DemoSpec, base, extraction, mapping) -> list:
     """The demo's negative queries: ``spec.negatives`` windows of the other scene (its robot and hand-held
     trajectories, seeds of their own)."""
     from sim.scenes import make_scene
@@ -141,7 +143,7 @@ def _helper_main(job_path: str) -> int:
     spec = DemoSpec(**{k: (tuple(tuple(x) for x in v) if k == "map_trajectories" else v)
                        for k, v in job["spec"].items()})
     base, extraction, mapping = _plan(spec, Config.model_validate(job["config"]))
-    save_queries(job["out"], negative_queries(spec, base, extraction, mapping))
+    save_queries(job["out"], _negative_queries(spec, base, extraction, mapping))
     return 0
 
 
@@ -206,7 +208,7 @@ def run_demo(spec: DemoSpec | None = None, cfg=None, *, progress: Callable[[str,
         negatives = _negatives_from_helper(helper, tmp)
         by_helper = negatives is not None
         if negatives is None:
-            negatives = negative_queries(spec, base, extraction, mapping)
+            negatives = _negative_queries(spec, base, extraction, mapping)
         phases["queries_s"] = time.perf_counter() - t
         step("queries", 2, 2)
     finally:
