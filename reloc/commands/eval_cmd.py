@@ -194,8 +194,6 @@ def eval_cmd(scenes, source, queries, negatives, window, max_window, map_frames,
 
 def _explain(prepared, names, map_scene, matching) -> None:
     """Print :func:`reloc.evaluation.explain.explain_query` for each query of ``names`` in ``prepared``."""
-    from types import SimpleNamespace
-
     from reloc.evaluation.ambiguity import scene_symmetries
     from reloc.evaluation.explain import explain_query
 
@@ -214,5 +212,5 @@ def _explain(prepared, names, map_scene, matching) -> None:
         else:
             how = ", labelled ambiguous (any pose counts as wrong)" if q.ambiguous else ""
         click.echo(f"== {name} in the map of {scene}{how}")
-        symmetries = scene_symmetries(SimpleNamespace(name=scene)) if truth is not None else []
+        symmetries = scene_symmetries(scene) if truth is not None else []
         click.echo(explain_query(prepared.relocalizer(scene, matching), q.submap, truth, symmetries=symmetries))

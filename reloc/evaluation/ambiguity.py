@@ -30,10 +30,12 @@ def _rotation_about_z(cx: float, cy: float, angle: float) -> np.ndarray:
 
 
 def scene_symmetries(scene) -> list[np.ndarray]:
-    """Candidate symmetries ``S`` (4x4, world to world) of a simulated scene; empty for scenes without any."""
+    """Candidate symmetries ``S`` (4x4, world to world) of a simulated scene (the scene or its name); empty for
+    scenes without any."""
     from sim.scenes import WALL_T
 
-    if scene.name == "meeting_rooms":
+    name = scene if isinstance(scene, str) else scene.name
+    if name == "meeting_rooms":
         pitch = 5.0 + WALL_T
         out = []
         for k in (-3, -2, -1, 1, 2, 3):
@@ -41,9 +43,9 @@ def scene_symmetries(scene) -> list[np.ndarray]:
             T[0, 3] = k * pitch
             out.append(T)
         return out
-    if scene.name == "symmetric_room":
+    if name == "symmetric_room":
         return [_rotation_about_z(3.0, 3.0, k * math.pi / 2) for k in (1, 2, 3)]
-    if scene.name == "corridor":
+    if name == "corridor":
         out = []
         for k in (-4, -3, -2, -1, 1, 2, 3, 4):
             T = np.eye(4)

@@ -17,7 +17,6 @@ from __future__ import annotations
 import math
 import time
 from dataclasses import dataclass, field, replace
-from types import SimpleNamespace
 from typing import Callable
 
 import numpy as np
@@ -242,7 +241,7 @@ def evaluate_queries(relocalizer: Relocalizer, queries: list[Query], scene_name:
     """Relocalize each query in the map of ``scene_name``; queries of other scenes are negatives. A positive,
     unambiguous query is also checked at its true pose (:meth:`Relocalizer.confirm`): whether it is identifiable,
     and if so whether a symmetric twin of that pose is confirmed too (:mod:`reloc.evaluation.metrics`)."""
-    symmetries = scene_symmetries(SimpleNamespace(name=scene_name))
+    symmetries = scene_symmetries(scene_name)
     out = []
     for q in queries:
         res = relocalizer.locate(q.submap)
