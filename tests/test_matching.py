@@ -206,6 +206,29 @@ def test_trimmed_extents_leave_out_a_few_stray_samples():
         MatchingParams(extent_trim_fraction=0.5)
 
 
+def test_the_key_table_finds_every_key_and_nothing_else():
+    """``key_table`` + ``_find_key`` (the spatial hash's lookup in verification) give each key's index in the sorted
+    keys and -1 for any other key, as a binary search does: the cells of a random cloud and of a wall (runs of
+    consecutive keys), probed at every key, at the 26 cells around each, and at random keys. No keys, no slots."""
+    rng = np.random.default_rng(11)
+    cloud = rng.uniform(-30.0, 30.0, size=(3000, 3))
+    wall = np.c_[np.full(4000, 2.0), rng.uniform(0.0, 8.0, 4000), rng.uniform(0.0, 2.7, 4000)]
+    for pts in (cloud, wall, cloud[:1]):
+        keys = np.unique(K.cell_keys(np.ascontiguousarray(pts), 0.1))
+        slots, slot_pos = K.key_table(keys)
+        size = len(slots)
+        assert size >= 2 * len(keys) and size & (size - 1) == 0 and (slots >= 0).sum() == len(keys)
+        shift, mask = K._table_shape(slots)
+        around, _ = K.dilate_keys(keys, np.zeros(len(keys), np.int32))
+        probes = np.concatenate([keys, around, rng.integers(0, 1 << 62, 5000)])
+        got = np.array([K._find_key(slots, slot_pos, shift, mask, k) for k in probes])
+        at = np.minimum(np.searchsorted(keys, probes), len(keys) - 1)
+        expected = np.where(keys[at] == probes, at, -1)
+        assert np.array_equal(got, expected)
+    slots, slot_pos = K.key_table(np.zeros(0, np.int64))
+    assert slots.shape == (0,) and slot_pos.shape == (0,)
+
+
 def test_incremental_order_starts_with_ground_and_separated_planes():
     rects = furnished_room("living")
     sub = view_planes(rects, look_at((5, 4, 1.5), (1, 1, 0.5)))

@@ -618,6 +618,55 @@ def dilate_keys(keys, ids):
     return out_k, out_i
 
 
+_MIX = -7046029254386353131  # 0x9E3779B97F4A7C15 as int64: Fibonacci hashing spreads the cell keys over the table
+
+
+@njit
+def key_table(keys):
+    """An open-addressing hash table of the unique int64 ``keys`` (all >= 0): ``slots`` (a power of two, at least
+    twice the keys, -1 where empty; none for no keys) and ``slot_pos`` (the index in ``keys`` of the key in each
+    slot). A lookup (:func:`_find_key`, on a non-empty table) costs one or two probes where a binary search over
+    the sorted keys of a large map costs twenty, most of them cache misses."""
+    n = keys.shape[0]
+    if n == 0:
+        return np.zeros(0, np.int64), np.zeros(0, np.int32)
+    size = 16
+    while size < 2 * n:
+        size *= 2
+    slots = np.full(size, -1, np.int64)
+    slot_pos = np.zeros(size, np.int32)
+    shift, mask = _table_shape(slots)
+    for k in range(n):
+        h = ((keys[k] * _MIX) >> shift) & mask
+        while slots[h] != -1:
+            h = (h + 1) & mask
+        slots[h] = keys[k]
+        slot_pos[h] = k
+    return slots, slot_pos
+
+
+@njit
+def _table_shape(slots):
+    """(shift, mask) of a non-empty table of :func:`key_table`: a key's first slot is its top bits once mixed."""
+    bits = 0
+    while (1 << bits) < slots.shape[0]:
+        bits += 1
+    return 64 - bits, slots.shape[0] - 1
+
+
+@njit(inline="always")
+def _find_key(slots, slot_pos, shift, mask, key):
+    """The index of ``key`` among the keys of a :func:`key_table`, or -1 when it is not one of them."""
+    h = ((key * _MIX) >> shift) & mask
+    while True:
+        s = slots[h]
+        if s == key:
+            return slot_pos[h]
+        if s == -1:
+            return -1
+        h = (h + 1) & mask
+
+
 @njit
 def _cell_of(x, y, z, cell):
     ix = int(math.floor(x / cell)) + _KEY_OFFSET
@@ -632,10 +681,10 @@ def _cell_of(x, y, z, cell):
 
 @njit
 def verify_transforms(R, t, cand, plane_order, sub_normals, sub_offsets, sub_centroids, sub_areas, vs_ptr, vs_points,
-                      map_normals, map_offsets, map_areas, min_area_ratio, hash_keys, hash_ptr, hash_ids, cell,
-                      cos_match, max_offset, inlier_m,
+                      map_normals, map_offsets, map_areas, min_area_ratio, hash_slots, hash_slot_pos,
+                      hash_ptr, hash_ids, cell, cos_match, max_offset, inlier_m,
                       use_projection, min_projection, use_overlap, min_overlap, min_matched, min_competitor,
-                      min_counted_area, free_keys, free_voxel, max_free_fraction, free_far_min, require_triplet,
+                      min_counted_area, free_slots, free_voxel, max_free_fraction, free_far_min, require_triplet,
                       conflict_offset, out_match, out_proj, out_over, out_state, out_nmatched, out_explained,
                       out_unknown, out_free, out_pass, out_free_frac):
     """Check each transform ``T_map_sub = (R[h], t[h])`` against the map.
@@ -647,29 +696,28 @@ def verify_transforms(R, t, cand, plane_order, sub_normals, sub_offsets, sub_cen
     plane's extent), otherwise every map plane is looked at. The projection ratio (Eq. 10) is the fraction of
     samples within ``inlier_m`` of plane i. j matches its best candidate that clears the enabled thresholds and
     whose area is at least ``min_area_ratio`` times j's (a map plane holds what any view saw of it).
-    A hypothesis passes when its three triplet planes match (unless ``require_triplet`` is False: a refined pose
-    is judged on all its planes alike), at least ``min_matched`` distinct map planes match, no plane lies in the
-    map's known free space, and the matched submap planes, with the planes the map knows nothing about, weigh at
-    least ``min_competitor`` of the total: it may be the truth. (Whether it explains enough to be accepted is for
-    the caller to judge from ``out_nmatched`` and ``out_explained``.) Each plane
-    weighing the square root of its area (its extent): large planes count more than clutter, but a floor and a
-    wall cannot hide unexplained furniture. Planes smaller than ``min_counted_area`` count only when they match
-    (small planes are mostly facets of curved clutter that no map holds). With ``free_keys`` (sorted voxel keys of
-    the map's known free space, edge ``free_voxel``), an unmatched plane of at least ``min_counted_area`` whose
-    samples fall in free space for more than ``max_free_fraction`` contradicts the map: the hypothesis fails (the
-    map saw empty space where the pose puts a surface). Free space is carved only up to a margin short of each
-    surface, so in a narrow place (a wall put across a 2 m corridor) most samples of such a plane are near a map
-    surface and never free; with ``free_far_min`` > 0, when at least that fraction of its samples are away from
-    every map surface (no map sample in their cell of the spatial hash), the free share of those samples is judged
-    too. ``out_free`` (H,) counts such planes. ``out_state`` (H, S) int8 says why each plane is unmatched: 0
-    matched (or not judged), 1 unknown (the map has nothing there: no surface facing the same way off its plane, no
-    free space), 2 conflict (map surfaces facing the same way, but more than ``conflict_offset`` off its plane, are
-    there), 3 in known free space, 4 too small to count; with a ``conflict_offset`` above ``max_offset``, 5 near a
-    surface facing the same way, between the two offsets (neither matched nor in conflict, nor unknown to the map);
-    ``out_unknown`` (H,) is the weight of the unknown planes as a fraction of the total (what the pose might still
-    explain with a more complete map); ``out_free_frac`` (H, S) float32 is the fraction of an unmatched counted
-    plane's samples in known free space (0 otherwise): a plane the map knows nothing about but whose place the map
-    saw partly empty is less likely to be there.
+    A hypothesis passes when its three triplet planes match (unless ``require_triplet`` is False: a refined pose is
+    judged on all its planes alike), at least ``min_matched`` distinct map planes match, no plane lies in the map's
+    known free space, and the matched submap planes, with the planes the map knows nothing about, weigh at least
+    ``min_competitor`` of the total: it may be the truth. (Whether it explains enough to be accepted is for the caller
+    to judge from ``out_nmatched`` and ``out_explained``.) Each plane weighing the square root of its area (its
+    extent): large planes count more than clutter, but a floor and a wall cannot hide unexplained furniture. Planes
+    smaller than ``min_counted_area`` count only when they match (small planes are mostly facets of curved clutter
+    that no map holds). With ``free_slots`` (a :func:`key_table` of the voxel keys of the map's known free space, edge
+    ``free_voxel``), an unmatched plane of at least ``min_counted_area`` whose samples fall in free space for more
+    than ``max_free_fraction`` contradicts the map: the hypothesis fails (the map saw empty space where the pose puts
+    a surface). Free space is carved only up to a margin short of each surface, so in a narrow place (a wall put
+    across a 2 m corridor) most samples of such a plane are near a map surface and never free; with ``free_far_min`` >
+    0, when at least that fraction of its samples are away from every map surface (no map sample in their cell of the
+    spatial hash), the free share of those samples is judged too. ``out_free`` (H,) counts such planes. ``out_state``
+    (H, S) int8 says why each plane is unmatched: 0 matched (or not judged), 1 unknown (the map has nothing there: no
+    surface facing the same way off its plane, no free space), 2 conflict (map surfaces facing the same way, but more
+    than ``conflict_offset`` off its plane, are there), 3 in known free space, 4 too small to count; with a
+    ``conflict_offset`` above ``max_offset``, 5 near a surface facing the same way, between the two offsets (neither
+    matched nor in conflict, nor unknown to the map); ``out_unknown`` (H,) is the weight of the unknown planes as a
+    fraction of the total (what the pose might still explain with a more complete map); ``out_free_frac`` (H, S)
+    float32 is the fraction of an unmatched counted plane's samples in known free space (0 otherwise): a plane the map
+    knows nothing about but whose place the map saw partly empty is less likely to be there.
 
     Outputs per hypothesis h and submap plane j: ``out_match`` (H, S) int32 map plane or -1, ``out_proj`` and
     ``out_over`` (H, S) float32 ratios; per hypothesis ``out_nmatched`` int32, ``out_explained`` float64,
@@ -687,8 +735,10 @@ def verify_transforms(R, t, cand, plane_order, sub_normals, sub_offsets, sub_cen
     for j in range(S):
         if sub_areas[j] >= min_counted_area:
             large_area += math.sqrt(sub_areas[j])
-    n_keys = hash_keys.shape[0]
-    n_free_keys = free_keys.shape[0]
+    n_slots = hash_slots.shape[0]
+    shift, mask = _table_shape(hash_slots) if n_slots > 0 else (0, 0)
+    n_free_slots = free_slots.shape[0]
+    free_shift, free_mask = _table_shape(free_slots) if n_free_slots > 0 else (0, 0)
     evaluated = 0
     for h in range(H):
         for j in range(S):
@@ -732,8 +782,8 @@ def verify_transforms(R, t, cand, plane_order, sub_normals, sub_offsets, sub_cen
                     py = R[h, 1, 0] * p[0] + R[h, 1, 1] * p[1] + R[h, 1, 2] * p[2] + t[h, 1]
                     pz = R[h, 2, 0] * p[0] + R[h, 2, 1] * p[1] + R[h, 2, 2] * p[2] + t[h, 2]
                     key = _cell_of(px, py, pz, cell)
-                    pos = _lower_bound(hash_keys, 0, n_keys, key)
-                    if pos >= n_keys or hash_keys[pos] != key:
+                    pos = _find_key(hash_slots, hash_slot_pos, shift, mask, key) if n_slots > 0 else -1
+                    if pos < 0:
                         continue
                     for e in range(hash_ptr[pos], hash_ptr[pos + 1]):
                         i = hash_ids[e]
@@ -821,8 +871,8 @@ def verify_transforms(R, t, cand, plane_order, sub_normals, sub_offsets, sub_cen
                     py = R[h, 1, 0] * p[0] + R[h, 1, 1] * p[1] + R[h, 1, 2] * p[2] + t[h, 1]
                     pz = R[h, 2, 0] * p[0] + R[h, 2, 1] * p[1] + R[h, 2, 2] * p[2] + t[h, 2]
                     key = _cell_of(px, py, pz, cell)
-                    pos = _lower_bound(hash_keys, 0, n_keys, key)
-                    if pos >= n_keys or hash_keys[pos] != key:
+                    pos = _find_key(hash_slots, hash_slot_pos, shift, mask, key) if n_slots > 0 else -1
+                    if pos < 0:
                         continue
                     hit = False
                     for e in range(hash_ptr[pos], hash_ptr[pos + 1]):
@@ -879,15 +929,15 @@ def verify_transforms(R, t, cand, plane_order, sub_normals, sub_offsets, sub_cen
                     py = R[h, 1, 0] * p[0] + R[h, 1, 1] * p[1] + R[h, 1, 2] * p[2] + t[h, 1]
                     pz = R[h, 2, 0] * p[0] + R[h, 2, 1] * p[1] + R[h, 2, 2] * p[2] + t[h, 2]
                     is_free = False
-                    if n_free_keys > 0:
+                    if n_free_slots > 0:
                         key = _cell_of(px, py, pz, free_voxel)
-                        pos = _lower_bound(free_keys, 0, n_free_keys, key)
-                        if pos < n_free_keys and free_keys[pos] == key:
+                        # Membership only: the table's own keys (all >= 0) stand in for the positions.
+                        if _find_key(free_slots, free_slots, free_shift, free_mask, key) >= 0:
                             inside += 1
                             is_free = True
                     key = _cell_of(px, py, pz, cell)
-                    pos = _lower_bound(hash_keys, 0, n_keys, key)
-                    if not (pos < n_keys and hash_keys[pos] == key):
+                    pos = _find_key(hash_slots, hash_slot_pos, shift, mask, key) if n_slots > 0 else -1
+                    if pos < 0:
                         # Away from every map surface: a sample the map can judge (free space is carved up to a
                         # margin short of each surface, so near one a sample is never free, whatever is there).
                         away += 1
@@ -1388,6 +1438,7 @@ def _warmup() -> None:
     dk, di = dk[o], di[o]
     uk, starts = np.unique(dk, return_index=True)
     hptr = np.append(starts, dk.shape[0]).astype(np.int64)
+    slots, slot_pos = key_table(uk)
     vs_ptr = np.arange(4, dtype=np.int64)
     S = 3
     om = np.empty((1, S), np.int32)
@@ -1402,9 +1453,9 @@ def _warmup() -> None:
     off = np.empty((1, S), np.float32)
     for use_overlap in (True, False):
         verify_transforms(Rs, ts, cand, np.arange(3, dtype=np.int32), normals, offsets, centroids, areas, vs_ptr, pts,
-                          normals, offsets, areas, 0.5, uk, hptr, di, 0.25, 0.99, 0.1, 0.05, True, 0.5, use_overlap,
-                          0.3, 3, 0.5,
-                          0.3, uk, 0.25, 0.5, 0.25, True, 0.1, om, op, oo, ost, on, oe, ou, of, ok, off)
+                          normals, offsets, areas, 0.5, slots, slot_pos, hptr, di, 0.25, 0.99, 0.1, 0.05, True,
+                          0.5, use_overlap, 0.3, 3, 0.5, 0.3, slots, 0.25, 0.5, 0.25, True, 0.1, om, op, oo, ost,
+                          on, oe, ou, of, ok, off)
     bases = np.zeros((3, 2, 3))
     bases[:, 0] = normals[[1, 2, 0]]
     bases[:, 1] = normals[[2, 0, 1]]

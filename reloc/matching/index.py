@@ -67,12 +67,15 @@ class MapIndex:
     adj_ext: np.ndarray  # (P, 4) the same in adjacency order
     hadj_ext: np.ndarray  # (H, 4) the same for the horizontal rows
     hash_keys: np.ndarray  # (C,) int64 sorted unique cell keys
+    hash_slots: np.ndarray  # the same keys in a hash table (_kernels.key_table), and each one's index in hash_keys
+    hash_slot_pos: np.ndarray
     hash_ptr: np.ndarray  # (C + 1,) int64
     hash_ids: np.ndarray  # (E,) int32 map plane ids per cell
     cell_m: float
     structural: bool
     build_ms: float
     free_keys: np.ndarray = None  # (F,) sorted int64 voxel keys of the map's known free space (may be empty)
+    free_slots: np.ndarray = None  # the same keys in a hash table (_kernels.key_table)
     free_voxel_m: float = 1.0
     dense_ext: np.ndarray | None = None  # (N, N, 2) every pair's extents: only for the brute-force baseline
     bases: np.ndarray | None = None  # (N, 2, 3) in-plane unit vectors of each plane (u, v)
@@ -176,6 +179,8 @@ def build_index(planes: PlaneSet, params: MatchingParams, *, free_keys: np.ndarr
     pair_ext = np.ascontiguousarray(ext[order])
     keys, ptr, ids = _spatial_hash(planes, params.extent_cell_m)
     bases, surf_ptr, surf_keys = _surface_cells(planes, SURFACE_CELL_M)
+    hash_slots, hash_slot_pos = K.key_table(keys)
+    free_keys = np.ascontiguousarray(free_keys if free_keys is not None else np.zeros(0), dtype=np.int64)
     return MapIndex(
         normals=normals,
         offsets=np.ascontiguousarray(planes.offsets),
@@ -196,12 +201,15 @@ def build_index(planes: PlaneSet, params: MatchingParams, *, free_keys: np.ndarr
         adj_ext=adj_ext,
         hadj_ext=np.ascontiguousarray(adj_ext[hsel]),
         hash_keys=keys,
+        hash_slots=hash_slots,
+        hash_slot_pos=hash_slot_pos,
         hash_ptr=ptr,
         hash_ids=ids,
         cell_m=float(params.extent_cell_m),
         structural=structural,
         build_ms=(time.perf_counter() - t0) * 1e3,
-        free_keys=np.ascontiguousarray(free_keys if free_keys is not None else np.zeros(0), dtype=np.int64),
+        free_keys=free_keys,
+        free_slots=K.key_table(free_keys)[0],
         free_voxel_m=float(free_voxel_m) if free_voxel_m > 0 else 1.0,
         bases=bases,
         surf_ptr=surf_ptr,
