@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import io
 import json
 import math
 import zipfile
@@ -28,6 +29,8 @@ from reloc.mapping import (
     select_keyframes,
     submap_constrained,
 )
+from reloc.matching import MatchingParams
+from reloc.matching.index import build_index
 from reloc.mapping.plane_map import MAP_FORMAT_VERSION
 from reloc.planes import plane_errors
 from reloc.transforms import exp_se3
@@ -233,6 +236,16 @@ def test_corrupted_map_files_raise_the_named_error(tmp_path, living_map):
     arrays["meta"] = np.frombuffer(json.dumps(meta).encode(), np.uint8)
     np.savez(old, **arrays)
 
+    def negative_key(name, data):
+        if name != "free_keys.npy":
+            return data
+        buf = io.BytesIO()
+        np.save(buf, np.array([-1, 5, 9], np.int64))  # -1 marks an empty slot of the free-space hash table
+        return buf.getvalue()
+
+    negative = tmp_path / "negative_free_key.npz"
+    _rewrite(good, negative, negative_key)
+
     empty = tmp_path / "empty.npz"
     empty.write_bytes(b"")
     single = tmp_path / "single.npz"
@@ -247,6 +260,7 @@ def test_corrupted_map_files_raise_the_named_error(tmp_path, living_map):
         other: "no 'meta' entry",
         no_meta: "no 'meta' entry",
         old: f"version {MAP_FORMAT_VERSION + 1}",
+        negative: r"free_keys: expected sorted unique voxel keys \(>= 0\)",
         tmp_path / "missing.npz": "no such file",
     }
     for path, pattern in cases.items():
@@ -262,6 +276,10 @@ def test_plane_map_validates_its_inputs(living_map):
         PlaneMap(pm.planes, pm.observations[:-1])
     with pytest.raises(ValueError, match="frame 'map'"):
         PlaneMap(pm.planes.transformed(np.eye(4), "cam"), pm.observations)
+    with pytest.raises(ValueError, match=r"free_keys: expected sorted unique voxel keys \(>= 0\).* from -3"):
+        PlaneMap(pm.planes, pm.observations, free_keys=np.array([-3, 4], np.int64), free_voxel_m=0.2)
+    with pytest.raises(ValueError, match="free_keys: expected voxel keys >= 0"):
+        build_index(pm.planes, MatchingParams(), free_keys=np.array([-3, 4], np.int64), free_voxel_m=0.2)
 
 
 def test_free_space_is_carved_in_front_of_surfaces_only():

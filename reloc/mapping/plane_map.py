@@ -73,9 +73,9 @@ class PlaneMap:
             raise ValueError(f"PlaneMap.observations: expected shape ({len(self.planes)},), got {obs.shape}")
         object.__setattr__(self, "observations", obs)
         free = np.ascontiguousarray(self.free_keys, dtype=np.int64).reshape(-1)
-        if len(free) and (not self.free_voxel_m > 0 or np.any(np.diff(free) <= 0)):
-            raise ValueError(f"PlaneMap.free_keys: expected sorted unique keys with free_voxel_m > 0, got "
-                             f"{len(free)} keys, free_voxel_m={self.free_voxel_m}")
+        if len(free) and (not self.free_voxel_m > 0 or np.any(np.diff(free) <= 0) or free[0] < 0):
+            raise ValueError(f"PlaneMap.free_keys: expected sorted unique voxel keys (>= 0) with free_voxel_m > 0, "
+                             f"got {len(free)} keys from {free[0]}, free_voxel_m={self.free_voxel_m}")
         object.__setattr__(self, "free_keys", free)
         if self.planes.frame != "map":
             raise ValueError(f"PlaneMap.planes: expected frame 'map', got {self.planes.frame!r}")

@@ -181,6 +181,9 @@ def build_index(planes: PlaneSet, params: MatchingParams, *, free_keys: np.ndarr
     bases, surf_ptr, surf_keys = _surface_cells(planes, SURFACE_CELL_M)
     hash_slots, hash_slot_pos = K.key_table(keys)
     free_keys = np.ascontiguousarray(free_keys if free_keys is not None else np.zeros(0), dtype=np.int64)
+    if len(free_keys) and free_keys.min() < 0:
+        raise ValueError(f"free_keys: expected voxel keys >= 0 (the hash table keeps -1 for an empty slot), got "
+                         f"{free_keys.min()}")
     return MapIndex(
         normals=normals,
         offsets=np.ascontiguousarray(planes.offsets),
