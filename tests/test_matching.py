@@ -206,6 +206,28 @@ def test_trimmed_extents_leave_out_a_few_stray_samples():
         MatchingParams(extent_trim_fraction=0.5)
 
 
+def test_pair_extents_are_each_pairs_signed_ranges_bit_for_bit():
+    """``pair_extents`` (plane by plane, all partners at once) gives for every pair exactly what ``signed_range``
+    gives pair by pair: random planes with 0 to 700 samples (none: (inf, -inf)), pairs in any order, a plane in
+    many pairs."""
+    rng = np.random.default_rng(5)
+    counts = np.array([0, 1, 2, 37, 700, 5, 0, 64, 300, 3])
+    ptr = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
+    pts = rng.normal(size=(ptr[-1], 3)) * 4.0
+    normals = rng.normal(size=(len(counts), 3))
+    normals /= np.linalg.norm(normals, axis=1)[:, None]
+    offsets = rng.normal(size=len(counts))
+    pairs = np.array([(a, b) for a in range(len(counts)) for b in range(len(counts)) if a != b])
+    pairs = pairs[rng.permutation(len(pairs))[:60]]
+    first, second = pairs[:, 0].astype(np.int32), pairs[:, 1].astype(np.int32)
+    got = K.pair_extents(first, second, normals, offsets, ptr, pts)
+    for p in range(len(pairs)):
+        want = K.signed_range(normals, offsets, ptr, pts, first[p], second[p]) + K.signed_range(
+            normals, offsets, ptr, pts, second[p], first[p])
+        assert got[p].tolist() == list(want)
+    assert K.pair_extents(first[:0], second[:0], normals, offsets, ptr, pts).shape == (0, 4)
+
+
 def test_the_key_table_finds_every_key_and_nothing_else():
     """``key_table`` + ``_find_key`` (the spatial hash's lookup in verification) give each key's index in the sorted
     keys and -1 for any other key, as a binary search does: the cells of a random cloud and of a wall (runs of

@@ -339,16 +339,70 @@ def signed_range(normals, offsets, ptr, points, a, b):
 
 @njit
 def pair_extents(first, second, normals, offsets, ptr, points):
-    """(P, 4) ``[lo, hi]`` of first's samples to second's plane, then of second's samples to first's plane."""
+    """(P, 4) ``[lo, hi]`` of first's samples to second's plane, then of second's samples to first's plane: per
+    pair what :func:`signed_range` gives, bit for bit.
+
+    Computed plane by plane: each plane's samples are read once, and each sample is measured against all the planes
+    it pairs with in an inner loop over them (independent, so the compiler vectorizes it). Pair by pair, a large
+    plane's samples (a floor's 100,000) were read again for each of its hundreds of partners, one at a time.
+    """
     P = first.shape[0]
+    N = normals.shape[0]
     out = np.empty((P, 4))
+    # Each pair twice, grouped by the plane whose samples are measured: (pair, column, partner plane).
+    deg = np.zeros(N + 1, np.int64)
     for p in range(P):
-        lo, hi = signed_range(normals, offsets, ptr, points, first[p], second[p])
-        out[p, 0] = lo
-        out[p, 1] = hi
-        lo, hi = signed_range(normals, offsets, ptr, points, second[p], first[p])
-        out[p, 2] = lo
-        out[p, 3] = hi
+        deg[first[p] + 1] += 1
+        deg[second[p] + 1] += 1
+    for a in range(N):
+        deg[a + 1] += deg[a]
+    fill = deg[:N].copy()
+    slot_pair = np.empty(2 * P, np.int64)
+    slot_col = np.empty(2 * P, np.int64)
+    slot_other = np.empty(2 * P, np.int64)
+    for p in range(P):
+        for side in range(2):
+            a = first[p] if side == 0 else second[p]
+            k = fill[a]
+            fill[a] += 1
+            slot_pair[k] = p
+            slot_col[k] = 2 * side
+            slot_other[k] = second[p] if side == 0 else first[p]
+    most = 0
+    for a in range(N):
+        most = max(most, deg[a + 1] - deg[a])
+    nx = np.empty(most)
+    ny = np.empty(most)
+    nz = np.empty(most)
+    dd = np.empty(most)
+    lo = np.empty(most)
+    hi = np.empty(most)
+    for a in range(N):
+        k0 = deg[a]
+        m = deg[a + 1] - k0
+        if m == 0:
+            continue
+        for q in range(m):
+            b = slot_other[k0 + q]
+            nx[q] = normals[b, 0]
+            ny[q] = normals[b, 1]
+            nz[q] = normals[b, 2]
+            dd[q] = offsets[b]
+            lo[q] = math.inf
+            hi[q] = -math.inf
+        for s in range(ptr[a], ptr[a + 1]):
+            px = points[s, 0]
+            py = points[s, 1]
+            pz = points[s, 2]
+            for q in range(m):
+                v = nx[q] * px + ny[q] * py + nz[q] * pz + dd[q]  # the order of signed_range's sum
+                lo[q] = v if v < lo[q] else lo[q]
+                hi[q] = v if v > hi[q] else hi[q]
+        for q in range(m):
+            p = slot_pair[k0 + q]
+            c = slot_col[k0 + q]
+            out[p, c] = lo[q]
+            out[p, c + 1] = hi[q]
     return out
 
 

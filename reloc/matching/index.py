@@ -105,7 +105,8 @@ def _spatial_hash(planes: PlaneSet, cell_m: float) -> tuple[np.ndarray, np.ndarr
     keys, ids = _unique_pairs(keys, ids.astype(np.int32))
     dk, di = K.dilate_keys(keys, ids)
     dk, di = _unique_pairs(dk, di)  # sorted by key, then id
-    keys_u, starts = np.unique(dk, return_index=True)
+    starts = np.flatnonzero(np.r_[True, dk[1:] != dk[:-1]])  # dk is sorted: where each cell's run starts
+    keys_u = dk[starts]
     ptr = np.append(starts, dk.shape[0]).astype(np.int64)
     return keys_u.astype(np.int64), ptr, np.ascontiguousarray(di)
 
@@ -121,16 +122,22 @@ def _surface_cells(planes: PlaneSet, cell_m: float) -> tuple[np.ndarray, np.ndar
         bases[i] = plane_basis(planes.normals[i])
     owner = np.repeat(np.arange(N, dtype=np.int64), np.diff(planes.sample_ptr))
     keys = K.surface_cells(np.ascontiguousarray(planes.sample_points, dtype=np.float64), owner, bases, cell_m)
-    keys, ids = _unique_pairs(keys, np.repeat(owner, 9).astype(np.int32))
-    order = np.argsort(ids, kind="stable")  # by plane, keys sorted within each
-    keys, ids = np.ascontiguousarray(keys[order]), ids[order]
+    if N < 1 << 21:
+        # A surface key has 42 bits: with the plane's number above them, one sort of one array puts the keys in
+        # order per plane (a lexsort of the two took four times as long, np.unique six times: 9.5 million keys).
+        packed = np.sort(np.repeat(owner, 9) << 42 | keys)
+        packed = packed[np.r_[True, packed[1:] != packed[:-1]]]
+        keys, ids = np.ascontiguousarray(packed & ((1 << 42) - 1)), packed >> 42
+    else:
+        keys, ids = _unique_pairs(keys, np.repeat(owner, 9).astype(np.int32), by_id=True)  # keys sorted per plane
     ptr = np.searchsorted(ids, np.arange(N + 1)).astype(np.int64)
     return bases, ptr, keys
 
 
-def _unique_pairs(keys: np.ndarray, ids: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Unique (key, id) pairs sorted by key then id (a lexsort: much faster than ``np.unique(axis=0)``)."""
-    order = np.lexsort((ids, keys))
+def _unique_pairs(keys: np.ndarray, ids: np.ndarray, by_id: bool = False) -> tuple[np.ndarray, np.ndarray]:
+    """Unique (key, id) pairs sorted by key then id, or with ``by_id`` by id then key (one lexsort: much faster than
+    ``np.unique(axis=0)``, or than a sort by key and a stable sort by id after it)."""
+    order = np.lexsort((keys, ids) if by_id else (ids, keys))
     k, i = keys[order], ids[order]
     keep = np.ones(len(k), dtype=bool)
     keep[1:] = (k[1:] != k[:-1]) | (i[1:] != i[:-1])
