@@ -228,6 +228,17 @@ def test_pair_extents_are_each_pairs_signed_ranges_bit_for_bit():
     assert K.pair_extents(first[:0], second[:0], normals, offsets, ptr, pts).shape == (0, 4)
 
 
+def test_an_index_of_too_many_planes_is_refused_by_name(monkeypatch):
+    """A plane's number is packed into 21 bits of its surface cells' keys: a map at the limit is refused before any
+    work, naming the limit and the count (the limit lowered to 3 to test it on the living room)."""
+    import reloc.matching.index as index_module
+
+    planes = scene_planes(furnished_room("living"), spacing=0.25)
+    monkeypatch.setattr(index_module, "_MAX_PLANES", 3)
+    with pytest.raises(ValueError, match=rf"planes: expected fewer than 3 planes .*got {len(planes)}"):
+        build_index(planes, MatchingParams())
+
+
 def test_the_key_table_finds_every_key_and_nothing_else():
     """``key_table`` + ``_find_key`` (the spatial hash's lookup in verification) give each key's index in the sorted
     keys and -1 for any other key, as a binary search does: the cells of a random cloud and of a wall (runs of

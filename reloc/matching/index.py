@@ -30,6 +30,7 @@ from reloc.planeset import PlaneSet
 __all__ = ["MapIndex", "SURFACE_CELL_M", "build_index", "horizontal_facing", "with_dense_extents"]
 
 SURFACE_CELL_M = 0.1  # the map samples' own spacing (``MappingConfig.map_sample_spacing_m``)
+_MAX_PLANES = 1 << 21  # a plane's number is packed above the 42 bits of its surface cells' keys (_surface_cells)
 
 
 def horizontal_facing(planes: PlaneSet, tolerance_rad: float) -> np.ndarray:
@@ -122,22 +123,19 @@ def _surface_cells(planes: PlaneSet, cell_m: float) -> tuple[np.ndarray, np.ndar
         bases[i] = plane_basis(planes.normals[i])
     owner = np.repeat(np.arange(N, dtype=np.int64), np.diff(planes.sample_ptr))
     keys = K.surface_cells(np.ascontiguousarray(planes.sample_points, dtype=np.float64), owner, bases, cell_m)
-    if N < 1 << 21:
-        # A surface key has 42 bits: with the plane's number above them, one sort of one array puts the keys in
-        # order per plane (a lexsort of the two took four times as long, np.unique six times: 9.5 million keys).
-        packed = np.sort(np.repeat(owner, 9) << 42 | keys)
-        packed = packed[np.r_[True, packed[1:] != packed[:-1]]]
-        keys, ids = np.ascontiguousarray(packed & ((1 << 42) - 1)), packed >> 42
-    else:
-        keys, ids = _unique_pairs(keys, np.repeat(owner, 9).astype(np.int32), by_id=True)  # keys sorted per plane
+    # A surface key has 42 bits: with the plane's number above them (N < 2^21, see build_index), one sort of one
+    # array puts the keys in order per plane (a lexsort of the two took four times as long, np.unique six times:
+    # 9.5 million keys at 2,000 planes).
+    packed = np.sort(np.repeat(owner, 9) << 42 | keys)
+    packed = packed[np.r_[True, packed[1:] != packed[:-1]]]
+    keys, ids = np.ascontiguousarray(packed & ((1 << 42) - 1)), packed >> 42
     ptr = np.searchsorted(ids, np.arange(N + 1)).astype(np.int64)
     return bases, ptr, keys
 
 
-def _unique_pairs(keys: np.ndarray, ids: np.ndarray, by_id: bool = False) -> tuple[np.ndarray, np.ndarray]:
-    """Unique (key, id) pairs sorted by key then id, or with ``by_id`` by id then key (one lexsort: much faster than
-    ``np.unique(axis=0)``, or than a sort by key and a stable sort by id after it)."""
-    order = np.lexsort((keys, ids) if by_id else (ids, keys))
+def _unique_pairs(keys: np.ndarray, ids: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Unique (key, id) pairs sorted by key then id (a lexsort: much faster than ``np.unique(axis=0)``)."""
+    order = np.lexsort((ids, keys))
     k, i = keys[order], ids[order]
     keep = np.ones(len(k), dtype=bool)
     keep[1:] = (k[1:] != k[:-1]) | (i[1:] != i[:-1])
@@ -150,6 +148,13 @@ def build_index(planes: PlaneSet, params: MatchingParams, *, free_keys: np.ndarr
     ``free_keys`` / ``free_voxel_m``: the map's known free space (:class:`reloc.mapping.PlaneMap`), if any."""
     if not isinstance(planes, PlaneSet):
         raise ValueError(f"planes: expected a PlaneSet, got {type(planes).__name__}")
+    if len(planes) >= _MAX_PLANES:
+        raise ValueError(f"planes: expected fewer than {_MAX_PLANES:,} planes (a plane's number takes 21 bits of a "
+                         f"surface cell's key), got {len(planes):,}")
+    free_keys = np.ascontiguousarray(free_keys if free_keys is not None else np.zeros(0), dtype=np.int64)
+    if len(free_keys) and free_keys.min() < 0:
+        raise ValueError(f"free_keys: expected voxel keys >= 0 (the hash table keeps -1 for an empty slot), got "
+                         f"{free_keys.min()}")
     t0 = time.perf_counter()
     structural = params.structural_constraints
     tol = params.pair_angle_tolerance_rad
@@ -187,10 +192,6 @@ def build_index(planes: PlaneSet, params: MatchingParams, *, free_keys: np.ndarr
     keys, ptr, ids = _spatial_hash(planes, params.extent_cell_m)
     bases, surf_ptr, surf_keys = _surface_cells(planes, SURFACE_CELL_M)
     hash_slots, hash_slot_pos = K.key_table(keys)
-    free_keys = np.ascontiguousarray(free_keys if free_keys is not None else np.zeros(0), dtype=np.int64)
-    if len(free_keys) and free_keys.min() < 0:
-        raise ValueError(f"free_keys: expected voxel keys >= 0 (the hash table keeps -1 for an empty slot), got "
-                         f"{free_keys.min()}")
     return MapIndex(
         normals=normals,
         offsets=np.ascontiguousarray(planes.offsets),
