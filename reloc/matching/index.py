@@ -67,9 +67,8 @@ class MapIndex:
     pair_ext: np.ndarray  # (P, 4) signed extents of each pair (pair order), see _kernels.pair_extents
     adj_ext: np.ndarray  # (P, 4) the same in adjacency order
     hadj_ext: np.ndarray  # (H, 4) the same for the horizontal rows
-    hash_keys: np.ndarray  # (C,) int64 sorted unique cell keys
-    hash_slots: np.ndarray  # the same keys in a hash table (_kernels.key_table), and each one's index in hash_keys
-    hash_slot_pos: np.ndarray
+    hash_slots: np.ndarray  # the C cell keys of the spatial hash in a hash table (_kernels.key_table), and each
+    hash_slot_pos: np.ndarray  # key's cell number c: its map planes are hash_ids[hash_ptr[c]:hash_ptr[c + 1]]
     hash_ptr: np.ndarray  # (C + 1,) int64
     hash_ids: np.ndarray  # (E,) int32 map plane ids per cell
     cell_m: float
@@ -211,7 +210,6 @@ def build_index(planes: PlaneSet, params: MatchingParams, *, free_keys: np.ndarr
         pair_ext=pair_ext,
         adj_ext=adj_ext,
         hadj_ext=np.ascontiguousarray(adj_ext[hsel]),
-        hash_keys=keys,
         hash_slots=hash_slots,
         hash_slot_pos=hash_slot_pos,
         hash_ptr=ptr,
