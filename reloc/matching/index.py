@@ -101,14 +101,47 @@ def _spatial_hash(planes: PlaneSet, cell_m: float) -> tuple[np.ndarray, np.ndarr
     if pts.shape[0] == 0:
         return np.zeros(0, np.int64), np.zeros(1, np.int64), np.zeros(0, np.int32)
     keys = K.cell_keys(np.ascontiguousarray(pts), cell_m)
-    # Unique (cell, plane) first, so the 27-fold dilation works on few entries.
-    keys, ids = _unique_pairs(keys, ids.astype(np.int32))
-    dk, di = K.dilate_keys(keys, ids)
-    dk, di = _unique_pairs(dk, di)  # sorted by key, then id
-    starts = np.flatnonzero(np.r_[True, dk[1:] != dk[:-1]])  # dk is sorted: where each cell's run starts
+    cells = _dilated_cells_packed(keys, ids.astype(np.int64), len(planes))
+    dk, di = cells if cells is not None else _dilated_cells_lexsorted(keys, ids.astype(np.int32))
+    starts = np.flatnonzero(np.r_[True, dk[1:] != dk[:-1]])  # each cell's run of plane ids starts
     keys_u = dk[starts]
     ptr = np.append(starts, dk.shape[0]).astype(np.int64)
-    return keys_u.astype(np.int64), ptr, np.ascontiguousarray(di)
+    return keys_u.astype(np.int64), ptr, np.ascontiguousarray(di, dtype=np.int32)
+
+
+def _dilated_cells_lexsorted(keys: np.ndarray, ids: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The unique (cell key, plane id) pairs of the 27 cells around each of ``keys`` (:func:`K.cell_keys`) with
+    its ``ids``, sorted by key, then id. Any keys; :func:`_dilated_cells_packed` gives the same, faster, where the
+    cells fit in one int64."""
+    keys, ids = _unique_pairs(keys, ids)  # unique (cell, plane) first, so the 27-fold dilation works on few entries
+    dk, di = K.dilate_keys(keys, ids)
+    return _unique_pairs(dk, di)
+
+
+def _dilated_cells_packed(keys: np.ndarray, ids: np.ndarray, n_ids: int) -> tuple[np.ndarray, np.ndarray] | None:
+    """:func:`_dilated_cells_lexsorted` with each (cell, id) packed into one int64 (the cell's place in the keys'
+    bounding box, grown by a cell each way, then the id), so that plain sorts replace two lexsorts (3.6 million
+    pairs at 2,000 planes: 0.3 s). None when the box times ``n_ids`` does not fit in 63 bits (a map tens of
+    kilometres across)."""
+    if len(keys) == 0:
+        return None
+    comp = np.stack([keys >> 42, (keys >> 21) & K._KEY_MASK, keys & K._KEY_MASK])
+    lo = comp.min(axis=1) - 1
+    span = [int(v) for v in comp.max(axis=1) - lo + 2]
+    if span[0] * span[1] * span[2] * max(n_ids, 1) >= 1 << 63:
+        return None
+    rel = comp - lo[:, None]
+    packed = np.sort(((rel[0] * span[1] + rel[1]) * span[2] + rel[2]) * n_ids + ids)
+    packed = packed[np.r_[True, packed[1:] != packed[:-1]]]  # np.unique, at a fraction of its time here
+    steps = np.array([((dx * span[1] + dy) * span[2] + dz) * n_ids
+                      for dx in (-1, 0, 1) for dy in (-1, 0, 1) for dz in (-1, 0, 1)], dtype=np.int64)
+    dil = np.sort((packed[:, None] + steps[None, :]).ravel())
+    dil = dil[np.r_[True, dil[1:] != dil[:-1]]]
+    cell, di = np.divmod(dil, n_ids)
+    x, rest = np.divmod(cell, span[1] * span[2])
+    y, z = np.divmod(rest, span[2])
+    dk = ((x + lo[0]) << 42) | ((y + lo[1]) << 21) | (z + lo[2])
+    return dk, di.astype(np.int32)
 
 
 def _surface_cells(planes: PlaneSet, cell_m: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
