@@ -121,8 +121,8 @@ def _dilated_cells_lexsorted(keys: np.ndarray, ids: np.ndarray) -> tuple[np.ndar
 def _dilated_cells_packed(keys: np.ndarray, ids: np.ndarray, n_ids: int) -> tuple[np.ndarray, np.ndarray] | None:
     """:func:`_dilated_cells_lexsorted` with each (cell, id) packed into one int64 (the cell's place in the keys'
     bounding box, grown by a cell each way, then the id), so that plain sorts replace two lexsorts (3.6 million
-    pairs at 2,000 planes: 0.3 s). None when the box times ``n_ids`` does not fit in 63 bits (a map tens of
-    kilometres across)."""
+    pairs at 2,000 planes: 0.3 s). None for no keys, or when the box times ``n_ids`` does not fit in 63 bits (a map
+    tens of kilometres across)."""
     if len(keys) == 0:
         return None
     comp = np.stack([keys >> 42, (keys >> 21) & K._KEY_MASK, keys & K._KEY_MASK])
