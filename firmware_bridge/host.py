@@ -477,11 +477,14 @@ class HostBridge:
         restarted = False
         if prev is not None:
             # The MCU's uptime must have advanced as much as our clock did since its last heartbeat (modulo the
-            # u32 wrap, within 0.5 s + 1 %); anything else is a restart of its clock.
+            # u32 wrap, within 0.5 s + 1 %); more is a restart of its clock (its uptime went back and wrapped).
+            # Less is a restart only if its whole uptime fits in the gap: a heartbeat read late (this reader held
+            # up) also advances less than our clock did, but from an uptime longer than the gap.
             prev_uptime, prev_rx = prev
             elapsed_ms = (rx_ns - prev_rx) / 1e6
             advanced_ms = (hb.uptime_ms - prev_uptime) % (1 << 32)
-            restarted = not (elapsed_ms - 500 <= advanced_ms <= elapsed_ms * 1.01 + 500)
+            restarted = advanced_ms > elapsed_ms * 1.01 + 500 or (
+                advanced_ms < elapsed_ms - 500 and hb.uptime_ms < elapsed_ms + 500)
         if restarted:
             # The MCU clock restarted: its old stamps and its odometry origin mean nothing now.
             self.clock.reset()

@@ -155,3 +155,31 @@ def test_a_silent_firmware_shows_in_the_host_state_and_the_loop_goes_on(tmp_path
     assert used.get("bridge", 0) > 0 and used.get("none", 0) > 0
     ok = [r for r in summary.relocalizations if r.ok]
     assert ok and all(r.position_error_m < 0.1 and r.rotation_error_deg < 2.0 for r in ok)
+
+
+def test_a_heartbeat_read_late_is_not_a_reboot_and_a_quick_reboot_still_is():
+    """The MCU's uptime advances less than the host's clock when the host reads a heartbeat late (its reader held
+    up for 0.51 s): that is no restart, and the clock mapping and odometry stay. An uptime that fits in the gap since
+    the last heartbeat (a reboot shorter than the u32 wrap would show) is one. Heartbeats every 0.5 s, the MCU clock
+    the host's, 2 ms of link delay."""
+    from firmware_bridge.messages import Heartbeat, McuState, Packet
+
+    ms = 1_000_000
+    bridge = HostBridge("loop://")
+
+    def heartbeat(uptime_ms: int, rx_ms: int) -> None:
+        bridge._on_packet(Packet(0, uptime_ms * ms, Heartbeat(McuState.DRIVING, uptime_ms=uptime_ms)), rx_ms * ms)
+
+    for t in range(10_000, 13_000, 500):
+        heartbeat(t, t + 2)
+        bridge._on_packet(Packet(0, t * ms, WheelOdometry(t * ms, 0.001 * (t - 10_000), 0.0, 0.0)), t * ms + 2 * ms)
+    offset = bridge.clock.offset_ns()
+    assert bridge.counters["mcu_reboots"] == 0 and len(bridge._odo) == 6 and offset == 2 * ms
+    heartbeat(13_000, 13_000 + 2 + 510)
+    assert bridge.counters["mcu_reboots"] == 0 and len(bridge._odo) == 6 and bridge.clock.offset_ns() == offset
+    assert bridge.T_odom_base_at(12_502 * ms) is not None
+    heartbeat(1_200, 16_000)  # up 1.2 s after 13 s: its uptime went back (and wrapped), it restarted
+    assert bridge.counters["mcu_reboots"] == 1 and len(bridge._odo) == 0 and bridge.clock.offset_ns() is None
+    heartbeat(1_700, 16_502)
+    heartbeat(2_500, 20_000)  # up 2.5 s, 3.5 s after its last heartbeat at 1.7 s: it restarted in the gap
+    assert bridge.counters["mcu_reboots"] == 2
