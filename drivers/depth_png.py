@@ -58,7 +58,7 @@ def read_depth_png_raw(path: str | os.PathLike) -> np.ndarray:
         raise ValueError(f"{path}: not a readable PNG image ({exc})") from None
     if arr.ndim != 2:
         raise ValueError(f"{path}: expected a single-channel 16-bit depth image, got mode {mode} with shape {arr.shape}")
-    if mode not in ("I;16", "I;16B", "I", "L", "I;16L"):
+    if mode not in ("I;16", "I;16B", "I", "I;16L"):  # not "L": 8 bits would read as 0-255 raw units
         raise ValueError(f"{path}: expected a 16-bit greyscale depth PNG, got mode {mode}")
     if arr.dtype != np.uint16:
         if arr.min(initial=0) < 0 or arr.max(initial=0) > 65535:
@@ -78,8 +78,6 @@ def read_depth_png(path: str | os.PathLike, depth_scale: float, invalid_raw: tup
 
 def write_depth_png(path: str | os.PathLike, depth_m: np.ndarray, depth_scale: float) -> None:
     """Write metres as uint16 ``round(depth_m * depth_scale)``; NaN, inf, <= 0 and out-of-range become 0. Atomic."""
-    from PIL import Image
-
     d = np.asarray(depth_m, dtype=np.float64)
     if d.ndim != 2:
         raise ValueError(f"depth_m: expected a 2-D array, got shape {d.shape}")

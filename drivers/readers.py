@@ -436,7 +436,12 @@ def read_intrinsics_yaml(path: Path) -> Intrinsics:
         raise ValueError(f"{path}: not a UTF-8 text file") from None
     except RecursionError:
         raise ValueError(f"{path}: YAML nested too deeply") from None
-    return Intrinsics.from_dict(data, source=str(path))
+    intrinsics = Intrinsics.from_dict(data, source=str(path))
+    if "depth_scale" not in data:
+        # No default: TUM RGB-D stores 5000 per metre, most cameras 1000, and a guess puts every depth 5 times off.
+        raise ValueError(f"{path}: missing key depth_scale (the depth images' integers per metre: 5000 for TUM RGB-D, "
+                         f"1000 for millimetres); expected fx, fy, cx, cy, width, height, depth_scale")
+    return intrinsics
 
 
 def read_opencv_xml_intrinsics(

@@ -33,10 +33,29 @@ from reloc.transforms import tum_from_transform
 from drivers.depth_png import write_depth_png, write_label_png
 from drivers.readers import noise_law_entry
 
-__all__ = ["Recorder", "RecordSummary", "record", "stamp_text"]
+__all__ = ["MIN_DEPTH_SCALE", "Recorder", "RecordSummary", "SEQUENCE_FILES", "clear_sequence", "record", "stamp_text"]
 
-_TEXT_FILES = ("depth.txt", "groundtruth.txt", "odometry.txt", "gravity.txt", "camera.yaml", "recording.json")
 _POSE_FILES = {"groundtruth": "groundtruth.txt", "odometry": "odometry.txt"}
+MIN_DEPTH_SCALE = 1000.0  # integers per metre written at least: millimetres (a uint16 image then holds 65.5 m)
+
+
+#: Every file of a sequence folder that a reader may take (drivers.readers) and a writer may leave: what
+#: :func:`clear_sequence` removes before another sequence is written over it.
+SEQUENCE_FILES = ("depth.txt", "labels.txt", "groundtruth.txt", "odometry.txt", "gravity.txt", "accelerometer.txt",
+                  "camera.yaml", "recording.json", "sim.json", "planes.json")
+
+
+def clear_sequence(out: Path) -> None:
+    """Remove the sequence in folder ``out`` (its depth and label images, :data:`SEQUENCE_FILES` and an emptied
+    ``labels/``) so that a sequence written over it keeps nothing of it: a leftover ``labels/`` would make the reader
+    ask a label image of every new frame, a leftover ``sim.json`` give it the simulator's noise law."""
+    for sub in ("depth", "labels"):
+        for p in (out / sub).glob("*.png"):
+            p.unlink()
+    for name in SEQUENCE_FILES:
+        (out / name).unlink(missing_ok=True)
+    if (out / "labels").is_dir() and not any((out / "labels").iterdir()):
+        (out / "labels").rmdir()
 
 
 def stamp_text(stamp_ns: int) -> str:
@@ -75,7 +94,8 @@ class RecordSummary:
 class Recorder:
     """Writes frames one by one (``write``) into ``out_dir``; ``close()`` (or leaving ``with``) finishes the files.
 
-    ``depth_scale``: stored integers per metre (default: the frames' intrinsics). Raises ValueError when
+    ``depth_scale``: stored integers per metre (default: the frames' intrinsics', at least
+    :data:`MIN_DEPTH_SCALE`). Raises ValueError when
     ``out_dir`` already holds a sequence (unless ``overwrite``), and from ``write`` for a frame whose stamp does
     not increase or whose intrinsics differ from the first frame's (nothing of that frame is written).
     """
@@ -88,11 +108,7 @@ class Recorder:
         if (self.out / "depth.txt").exists():
             if not overwrite:
                 raise ValueError(f"out_dir: {self.out} already holds a sequence (depth.txt); use overwrite to replace it")
-            for sub in ("depth", "labels"):
-                for p in (self.out / sub).glob("*.png"):
-                    p.unlink()
-            for name in _TEXT_FILES:
-                (self.out / name).unlink(missing_ok=True)
+            clear_sequence(self.out)
         if depth_scale is not None and not depth_scale > 0:
             raise ValueError(f"depth_scale: expected > 0, got {depth_scale}")
         if not isinstance(flush_every, int) or flush_every < 1:
@@ -118,7 +134,9 @@ class Recorder:
         if self._intrinsics is None:
             self._intrinsics = frame.intrinsics
             if self.depth_scale is None:
-                self.depth_scale = frame.intrinsics.depth_scale
+                # The source's own units, unless coarser than a millimetre: a float depth source (a 32FC1 bag,
+                # scale 1 per metre) would be rounded to whole metres in the uint16 images.
+                self.depth_scale = max(float(frame.intrinsics.depth_scale), MIN_DEPTH_SCALE)
             self._write_camera_yaml()
         elif frame.intrinsics != self._intrinsics:
             raise ValueError(f"frame {frame.seq}: intrinsics {frame.intrinsics} differ from the first frame's "

@@ -11,6 +11,8 @@ import os
 from pathlib import Path
 from typing import Iterator
 
+import numpy as np
+
 from reloc.camera import DepthFrame, Intrinsics
 
 from drivers.readers import Sequence, open_sequence, read_noise_law
@@ -32,6 +34,8 @@ class ReplaySource(FrameSource):
                  loop: bool = False, start: int = 0, stop: int | None = None, step: int = 1,
                  max_dt_s: float = 0.02, poses: str = "auto") -> None:
         super().__init__()
+        if isinstance(step, bool) or not isinstance(step, (int, np.integer)) or step < 1:
+            raise ValueError(f"step: expected a positive integer (frames are played forward in time), got {step!r}")
         seq = path if isinstance(path, Sequence) else open_sequence(path, max_dt_s=max_dt_s, poses=poses)
         self.sequence = seq[start:stop:step]
         if len(self.sequence) == 0:

@@ -96,9 +96,9 @@ def _prepare(out: Path, overwrite: bool) -> None:
     if (out / "depth.txt").exists():
         if not overwrite:
             raise ValueError(f"out_dir: {out} already holds a sequence (depth.txt); pass overwrite=True to replace it")
-        for sub in ("depth", "labels"):
-            for p in (out / sub).glob("*.png"):
-                p.unlink()
+        from drivers.recorder import clear_sequence
+
+        clear_sequence(out)
     (out / "depth").mkdir(parents=True, exist_ok=True)
     (out / "labels").mkdir(parents=True, exist_ok=True)
 

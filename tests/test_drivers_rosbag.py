@@ -100,6 +100,21 @@ def test_bag_with_mounting_records_to_tum(tmp_path):
     np.testing.assert_allclose(seq[1].T_world_cam, poses[1] @ T_base_cam, atol=1e-8)
 
 
+def test_a_float_depth_bag_records_millimetres_not_whole_metres(tmp_path):
+    """A 32FC1 bag's depth is in metres (scale 1 per metre); recorded into uint16 images at that scale every depth
+    was rounded to whole metres. The recording is in millimetres: each depth read back within half of one."""
+    depths, _, _ = make_bag(tmp_path / "bag", "32FC1")
+    with RosbagSource(tmp_path / "bag", rate="fast") as src:
+        assert src.intrinsics.depth_scale == 1.0
+        record(src, tmp_path / "tum")
+    seq = open_sequence(tmp_path / "tum")
+    assert seq.intrinsics.depth_scale == 1000.0
+    for i, d in enumerate(depths):
+        got = seq[i].depth_m
+        assert np.isnan(got[0, 0])
+        np.testing.assert_allclose(got[1:, :], d[1:, :], atol=0.0005 + 1e-6)
+
+
 def test_bag_errors(tmp_path):
     make_bag(tmp_path / "bag")
     with pytest.raises(ValueError, match=r"depth_topic: '/nope' is not a sensor_msgs/msg/Image topic"):

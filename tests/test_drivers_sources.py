@@ -269,6 +269,18 @@ def test_a_recording_keeps_the_cameras_noise_law_and_its_replay_reports_it(tmp_p
         read_noise_law(tmp_path / "rec")
 
 
+def test_a_replay_plays_forward_only(tmp_path):
+    """A negative or zero step would play the sequence backwards (stamps decreasing, which every consumer refuses
+    frame by frame) or not at all: refused when the source is made, naming ``step``."""
+    with ListSource(_frames(3)) as src:
+        record(src, tmp_path / "rec")
+    for step in (-1, 0, 1.5, True):
+        with pytest.raises(ValueError, match=rf"step: expected a positive integer .*got {step!r}"):
+            ReplaySource(tmp_path / "rec", step=step)
+    with ReplaySource(tmp_path / "rec", rate="fast", step=2) as src:
+        assert [f.seq for f in src] == [0, 2]
+
+
 def test_record_stops_and_skips(tmp_path):
     frames = _frames(6)
     bad = frames[:3] + [frames[1]] + frames[3:]  # a frame out of order is skipped and counted

@@ -117,6 +117,15 @@ def test_valid_png_reads_exactly():
     np.testing.assert_array_equal(depth, np.array([[np.nan, 1.0], [65.535, 2.5]], np.float32))
 
 
+def test_an_8_bit_png_is_refused_as_a_depth_image(tmp_path):
+    """Eight bits cannot hold depth at any scale a camera uses: read as raw units, 200 at 5000 per metre was 4 cm
+    everywhere, silently. Refused, naming the mode."""
+    p = tmp_path / "grey8.png"
+    Image.fromarray(np.full((4, 4), 200, np.uint8), "L").save(p)
+    with pytest.raises(ValueError, match=r"grey8.png: expected a 16-bit greyscale depth PNG, got mode L"):
+        read_depth_png(p, 5000.0)
+
+
 # Regressions found by the fuzzer (each escaped before its fix).
 
 

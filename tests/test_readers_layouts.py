@@ -285,6 +285,11 @@ def test_bad_camera_yaml(tmp_path):
     (tmp_path / "camera.yaml").write_text("fx: [1\n")
     with pytest.raises(ValueError, match=r"camera.yaml: not valid YAML"):
         open_sequence(tmp_path)
+    # No default scale: a TUM sequence read at 1000 per metre instead of its 5000 was 5 times too far, silently.
+    (tmp_path / "camera.yaml").write_text(yaml.safe_dump({k: v for k, v in CAMERA.items() if k != "depth_scale"}))
+    with pytest.raises(ValueError, match=r"camera.yaml: missing key depth_scale \(the depth images' integers per "
+                                         r"metre: 5000 for TUM RGB-D"):
+        open_sequence(tmp_path)
 
 
 def test_bad_arguments(tmp_path):

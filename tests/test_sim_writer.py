@@ -112,3 +112,32 @@ def test_cli_writes_sequence(tmp_path):
     # The same command twice without --overwrite is refused, with the reason.
     res = CliRunner().invoke(sim_command, ["living_room", "--frames", "2", "--out", str(out)])
     assert res.exit_code != 0
+
+
+def test_a_sequence_written_over_another_keeps_nothing_of_it(tmp_path):
+    """A recording written with overwrite over a simulated sequence reads back as itself: no label images asked of
+    its frames (a leftover labels/ did), no scene planes and no simulator noise law (planes.json and sim.json did
+    stay). The other way round, the simulator's sequence keeps no odometry.txt or recording.json of the recording."""
+    from drivers.readers import noise_law_entry, open_sequence, read_noise_law
+    from drivers.recorder import Recorder
+    from reloc.camera import DepthFrame
+
+    scene = make_scene("living_room")
+    intr = preset("kinect").scaled(160, 120)
+    out = tmp_path / "seq"
+    write_sequence(sim.simulate_frames(scene, "robot", 3, noise="kinect", camera=intr, seed=1), scene, out,
+                   metadata={"noise_law": noise_law_entry(("kinect", 1.425e-3))})  # as `reloc sim` stores it
+    assert open_sequence(out).label_files is not None and read_noise_law(out) == ("kinect", 1.425e-3)
+    rng = np.random.default_rng(2)
+    with Recorder(out, overwrite=True) as rec:
+        for i in range(2):
+            rec.write(DepthFrame(rng.uniform(0.5, 4.0, intr.shape).astype(np.float32), intr, 10**9 + i * 33_333_333,
+                                 seq=i, T_world_cam=np.eye(4), pose_source="odometry"))
+    seq = open_sequence(out)
+    assert len(seq) == 2 and seq.label_files is None and seq.planes_file is None and seq.pose_source == "odometry"
+    assert read_noise_law(out) is None and not (out / "labels").exists() and not (out / "sim.json").exists()
+    write_sequence(sim.simulate_frames(scene, "robot", 3, noise="none", camera=intr, seed=1), scene, out,
+                   overwrite=True)
+    seq = open_sequence(out)
+    assert len(seq) == 3 and seq.pose_source == "groundtruth" and seq.label_files is not None
+    assert not (out / "odometry.txt").exists() and not (out / "recording.json").exists()
