@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 import threading
+import time
 from dataclasses import replace
 from types import SimpleNamespace
 
@@ -16,11 +17,13 @@ from drivers.sim_source import SimSource
 from drivers.source import FrameSource
 from reloc.live.factory import TruthPlanes, load_plane_map
 from reloc.live.frame_queue import DropOldestQueue
-from reloc.live.loop import THREAD_NAMES, LiveLoop
+from reloc.live.loop import THREAD_NAMES, LiveLoop, _carry_trigger
 from reloc.live.params import LiveParams
 from reloc.live.submap import SubmapWindow
 from reloc.live.tracking import explained_fraction
+from reloc.camera import DepthFrame, Intrinsics
 from reloc.matching import Relocalizer
+from reloc.planeset import PlaneSet
 from reloc.transforms import pose_error
 from sim.ground_truth import planes_in_camera, visible_planes
 
@@ -238,8 +241,6 @@ def test_bounded_queue_drops_the_oldest_frames_when_processing_falls_behind(livi
 
 
 def _wait(cond, timeout_s=20.0):
-    import time
-
     end = time.monotonic() + timeout_s
     while not cond() and time.monotonic() < end:
         time.sleep(0.005)
@@ -506,3 +507,128 @@ def test_keyboard_enter_relocalizes_and_q_quits(living_room_map, monkeypatch):
     assert summary.source_events["end"] == "stopped"
     assert any("quit requested from the keyboard" in e for e in summary.source_events["events"])
     assert loop_threads_alive() == []
+
+
+# -- capture and requests under faults (fakes: constant depth, empty planes) --------------------------------------
+
+
+def _flat_frame(seq: int, depth: float = 2.0) -> DepthFrame:
+    intr = Intrinsics(100.0, 100.0, 16.0, 12.0, 32, 24)
+    return DepthFrame(np.full((24, 32), depth, np.float32), intr, time.monotonic_ns(), seq)
+
+
+class _NoPlanes:
+    def __init__(self, sleep_s: float = 0.0):
+        self.sleep_s = sleep_s
+
+    def __call__(self, frame):
+        time.sleep(self.sleep_s)
+        return SimpleNamespace(planes=PlaneSet.empty(frame="cam"), timings_ms={})
+
+
+class _AlwaysLocated:
+    def locate(self, submap):
+        return SimpleNamespace(status="relocalized", reason="", T_map_cam=np.eye(4), score=1.0)
+
+
+def test_the_queue_hands_a_dropped_items_trigger_to_the_oldest_left():
+    q = DropOldestQueue(2)
+    for item in [("f0", 0, "reconnect"), ("f1", 1, None), ("f2", 2, None), ("f3", 3, None)]:
+        q.put(item, carry=_carry_trigger)
+    assert q.dropped == 2 and [q.get(0), q.get(0)] == [("f2", 2, "reconnect"), ("f3", 3, None)]
+    q1 = DropOldestQueue(1)
+    q1.put(("f0", 0, "reconnect"), carry=_carry_trigger)
+    q1.put(("f1", 1, None), carry=_carry_trigger)
+    assert q1.get(0) == ("f1", 1, "reconnect")
+    q1.put(("f2", 2, "reconnect"))
+    q1.put(("f3", 3, None))  # no carry: dropped with its frame
+    assert q1.get(0) == ("f3", 3, None)
+
+
+def test_a_reconnect_whose_frame_is_dropped_still_resets_odometry_and_relocalizes():
+    """After a reconnect the first frame carries the trigger; processing 0.2 s a frame while frames come every 10 ms
+    into a queue of 4, that frame is dropped. Its trigger moves to the oldest frame left: the relocalization after
+    the gap is asked for (it was lost with the frame, and the odometry chained across the outage)."""
+    class Source:
+        def __init__(self):
+            self.passes = 0
+
+        def info(self):
+            return {"name": "fake"}
+
+        def reconnect(self):
+            return True
+
+        def __iter__(self):
+            self.passes += 1
+            first = self.passes == 1
+
+            def frames():
+                for s in range(10) if first else range(10, 40):
+                    yield _flat_frame(s)
+                    time.sleep(0.01)
+                if first:
+                    raise RuntimeError("usb gone")
+            return frames()
+
+    loop = LiveLoop(Source(), _NoPlanes(0.2), _AlwaysLocated(),
+                    params=LiveParams(queue_frames=4, reconnect_backoff_s=(0.0,)))
+    summary = loop.run()
+    assert summary.source_events["reconnects"] == 1 and summary.frames["dropped"] > 4
+    assert [r.trigger for r in summary.relocalizations].count("reconnect") == 1
+
+
+def test_a_firmware_request_is_answered_while_every_frame_is_bad():
+    """A covered lens (every frame all zero): a request from the firmware got no answer at all, since bad frames
+    counted as frames flowing and never reached the trigger. It is answered not_ready."""
+    from firmware_bridge.host import RelocRequestEvent
+    from firmware_bridge.messages import PoseStatus
+
+    class Bridge:
+        def __init__(self):
+            self.t0, self.sent, self.asked = time.monotonic(), [], False
+
+        def get_event(self, timeout_s=0.0):
+            if not self.asked and time.monotonic() - self.t0 > 0.5:
+                self.asked = True
+                return RelocRequestEvent(request_id=7, reason=0, stamp_host_ns=0, rx_ns=0)
+            time.sleep(timeout_s)
+            return None
+
+        def send_pose(self, T, stamp, *, status=0, score=0.0, request_id=0):
+            self.sent.append((request_id, status))
+
+        def send_status(self, *a, **kw):
+            pass
+
+        def T_odom_base_at(self, stamp_ns):
+            return None
+
+    class Covered:
+        def info(self):
+            return {"name": "covered"}
+
+        def __iter__(self):
+            for s in range(60):
+                yield _flat_frame(s, depth=0.0)
+                time.sleep(0.033)
+
+    bridge = Bridge()
+    summary = LiveLoop(Covered(), _NoPlanes(), _AlwaysLocated(), bridge=bridge).run()
+    assert bridge.asked and summary.frames["bad"] == {"no_valid_depth": 60}
+    assert [s for i, s in bridge.sent if i == 7] == [PoseStatus.NOT_READY]
+
+
+def test_a_frame_delivered_late_is_not_counted_missing():
+    """Frames 0, 1, 2, 5, 3, 4, 6: nothing is missing (3 were counted before); with 8 and 9 never sent, two are."""
+
+    class Source:
+        def info(self):
+            return {"name": "late"}
+
+        def __iter__(self):
+            for s in (0, 1, 2, 5, 3, 4, 6, 7, 10):
+                yield _flat_frame(s)
+
+    summary = LiveLoop(Source(), _NoPlanes(), _AlwaysLocated()).run()
+    assert summary.frames["captured"] == 9 and summary.frames["source_gaps"] == 2

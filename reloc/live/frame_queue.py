@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import threading
 from collections import deque
-from typing import Any
+from typing import Any, Callable
 
 __all__ = ["DropOldestQueue"]
 
@@ -28,14 +28,17 @@ class DropOldestQueue:
         self.dropped = 0
         self.max_depth = 0
 
-    def put(self, item: Any) -> Any | None:
-        """Append ``item``; returns the evicted oldest item when the queue was full, else None."""
+    def put(self, item: Any, carry: Callable[[Any, Any], Any] | None = None) -> Any | None:
+        """Append ``item``; returns the evicted oldest item when the queue was full, else None. With ``carry``, the
+        oldest item left becomes ``carry(evicted, oldest)`` (what of a dropped item must not be lost with it)."""
         with self._cond:
             evicted = None
             if len(self._items) >= self.maxlen:
                 evicted = self._items.popleft()
                 self.dropped += 1
             self._items.append(item)
+            if evicted is not None and carry is not None:
+                self._items[0] = carry(evicted, self._items[0])
             self.put_count += 1
             self.max_depth = max(self.max_depth, len(self._items))
             self._cond.notify()

@@ -323,6 +323,20 @@ class LiveLoop:
         with self._lock:
             return list(self.relocalizations)
 
+    def _frames_usable(self) -> bool:
+        """Whether a frame with planes came in lately (within ``stall_s``, at least 1 s): one that a relocalization
+        request can be answered with."""
+        last = self._last_frame_s
+        return last is not None and time.monotonic() - last <= max(1.0, self.params.stall_s)
+
+    def _take_firmware_requests(self) -> tuple[int, ...]:
+        """The ids of the pending requests from the firmware, taken off the pending list (other triggers stay)."""
+        with self._lock:
+            ids = tuple(i for _, i in self._requests if i)
+            if ids:
+                self._requests = [(t, i) for t, i in self._requests if not i]
+        return ids
+
     def request_relocalization(self, trigger: str = "manual", request_id: int = 0) -> None:
         """Relocalize with the next frame's submap (thread-safe); ``request_id`` is answered over serial."""
         with self._lock:
@@ -396,6 +410,7 @@ class LiveLoop:
         reconnect = getattr(self.source, "reconnect", None)
         it = iter(self.source)
         last_seq = last_cap = None
+        missing: set[int] = set()  # numbers skipped over (a few dozen a gap), in case they come late
         tag = None  # a trigger attached to the next frame
         try:
             while not self._stop.is_set():
@@ -422,12 +437,19 @@ class LiveLoop:
                     continue
                 if last_seq is not None and frame.seq > last_seq + 1:
                     self.source_gaps += frame.seq - last_seq - 1
+                    if len(missing) < 1024:
+                        missing.update(range(last_seq + 1, min(frame.seq, last_seq + 65)))
+                elif frame.seq in missing:  # delivered late (5, 3, 4): not missing after all
+                    missing.discard(frame.seq)
+                    self.source_gaps -= 1
                 if last_cap is not None and t_cap - last_cap > self.params.stall_s * 1e9:
                     self.stalls += 1
                     self._event(f"source stalled {(t_cap - last_cap) / 1e9:.2f} s before seq {frame.seq}")
-                last_seq, last_cap = frame.seq, t_cap
+                # The highest number so far: a frame delivered late (5, 3, 4) fills in a gap, it opens none.
+                last_seq = frame.seq if last_seq is None else max(last_seq, frame.seq)
+                last_cap = t_cap
                 self.captured += 1
-                self._queue.put((frame, t_cap, tag))
+                self._queue.put((frame, t_cap, tag), carry=_carry_trigger)
                 tag = None
                 if max_frames is not None and self.captured >= max_frames:
                     self.source_end = "max_frames"
@@ -484,7 +506,6 @@ class LiveLoop:
     def _process(self, frame: DepthFrame, t_cap: int) -> None:
         prof = self.profiler
         self.processed += 1
-        self._last_frame_s = time.monotonic()
         depth = frame.depth_m
         if not np.any(depth > 0):  # NaN compares False: all-NaN and all-zero frames have no measurement
             self.bad["no_valid_depth"] += 1
@@ -504,6 +525,7 @@ class LiveLoop:
         timings = {k: v for k, v in getattr(result, "timings_ms", {}).items() if k != "total"}
         prof.add_timings_ms(timings, prefix="extract.", end_ns=t1)
         self.planes_ok += 1
+        self._last_frame_s = time.monotonic()  # a frame that can answer a relocalization request
         cap_to_planes = self.clock_ns() - t_cap
         prof.record("latency.capture_to_planes", t1 - cap_to_planes, cap_to_planes)
 
@@ -679,12 +701,11 @@ class LiveLoop:
                     if isinstance(ev, RelocRequestEvent):
                         self._event(f"relocalization requested by the MCU (id {ev.request_id}, "
                                     f"reason {ev.reason})")
-                        last = self._last_frame_s
-                        if last is None or time.monotonic() - last > max(1.0, self.params.stall_s):
-                            # No frames are flowing (camera starting, lost or stalled): say so now, do not make the
-                            # firmware wait.
+                        if not self._frames_usable():
+                            # No usable frames (camera starting, lost, stalled, or only bad frames): say so now, do
+                            # not make the firmware wait.
                             self._post(("reloc", None, self.clock_ns(), 0.0, ev.request_id,
-                                        "not_ready: no camera frames"))
+                                        "not_ready: no usable camera frames"))
                         else:
                             self.request_relocalization("request", ev.request_id)
                     elif isinstance(ev, BridgeEvent):
@@ -696,6 +717,10 @@ class LiveLoop:
                     elif isinstance(ev, OdometryEvent):
                         pass  # odometry is read from the bridge's buffer at each frame's capture time
                     ev = bridge.get_event(timeout_s=0)
+                if not self._frames_usable():
+                    # Requests taken while frames were usable wait for the next usable frame; none came since.
+                    for rid in self._take_firmware_requests():
+                        self._post(("reloc", None, self.clock_ns(), 0.0, rid, "not_ready: no usable camera frames"))
                 while True:
                     try:
                         item = self._outbox.get_nowait()
@@ -859,6 +884,12 @@ class LiveLoop:
             relocs_ok_total=self.relocs_ok_total, latency_ms=latency, end_to_end_ms=e2e, bridge=bridge,
             faults=faults, errors=list(self.errors),
         )
+
+
+def _carry_trigger(dropped: tuple, oldest: tuple) -> tuple:
+    """The queue's oldest frame takes on the trigger of a frame dropped before it: a reconnect's odometry reset must
+    come before any frame from after the gap is processed, and its relocalization must still be asked for."""
+    return oldest if dropped[2] is None or oldest[2] is not None else (oldest[0], oldest[1], dropped[2])
 
 
 def _reject_status(reason: str, PoseStatus) -> int:
