@@ -265,12 +265,24 @@ class SerialLink:
     def _try_open(self) -> bool:
         import serial
 
+        port = None
         try:
             port = self._opener()
             if hasattr(port, "reset_input_buffer"):
                 port.reset_input_buffer()  # bytes from before this connection are stale
-            port.write(b"\x00")  # the peer drops any partial frame and is in step from our first byte
+            try:
+                port.write(b"\x00")  # the peer drops any partial frame and is in step from our first byte
+            except serial.SerialTimeoutException as exc:
+                # Open, but the peer is not reading: a write that timed out, as later ones may; the port is kept
+                # (the peer's frames still come in) and the next frame's leading delimiter resyncs it.
+                self.stats.write_timeouts += 1
+                self._emit("write_timeout", f"{self.url}: resync byte: {exc}")
         except (serial.SerialException, OSError, ValueError) as exc:
+            if port is not None:
+                try:
+                    port.close()  # opened, then failed: not left for the garbage collector to close
+                except Exception:  # noqa: BLE001 - it failed already; closing is best effort
+                    pass
             self.stats.open_failures += 1
             if self.stats.open_failures == 1 or self._connected_once:
                 self._emit("open_failed", f"{self.url}: {exc}")

@@ -137,7 +137,9 @@ class ClockSync:
                 return None
             if best.rtt_ns < 0 or at_host_ns is None:
                 return best.offset_ns
-            return int(best.offset_ns + self._drift(best) * (at_host_ns - best.host_ns))
+            # Integer nanoseconds but for the drift's correction: a host clock of 1.7e18 ns (time.time_ns) has no
+            # exact float, and a float sum was off by tens of nanoseconds with no drift at all.
+            return best.offset_ns + round(self._drift(best) * (at_host_ns - best.host_ns))
 
     def uncertainty_ns(self) -> int | None:
         """Half the round trip of the sample in use (bound of its error); None for a one-way bound or no sample."""
@@ -152,11 +154,11 @@ class ClockSync:
             if best is None:
                 return None
             if best.rtt_ns < 0:
-                return int(mcu_ns + best.offset_ns)
+                return int(mcu_ns) + best.offset_ns
             drift = self._drift(best)
-            # host = mcu + offset(host); solve to first order around the sample.
-            approx = mcu_ns + best.offset_ns
-            return int(approx + drift * (approx - best.host_ns))
+            # host = mcu + offset(host); solve to first order around the sample (integer ns but for the correction).
+            approx = int(mcu_ns) + best.offset_ns
+            return approx + round(drift * (approx - best.host_ns))
 
     def host_to_mcu_ns(self, host_ns: int) -> int | None:
         """MCU time of a host stamp, or None before any sample."""

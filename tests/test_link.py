@@ -215,6 +215,45 @@ def test_write_timeout_is_counted_and_not_fatal(tmp_path):
         ep.close()
 
 
+def test_a_port_whose_resync_byte_times_out_is_connected_and_one_that_fails_is_closed():
+    """The link writes one 0x00 on opening. A peer that is not reading (its buffer full) made that write time out,
+    and the open port was counted as a failed open and dropped unclosed, again and again: now it is connected with
+    the write timeout counted. A port that fails after opening (a device gone at once) is closed, not left to the
+    garbage collector."""
+    import serial
+
+    class Port:
+        def __init__(self, fail):
+            self.fail, self.closed = fail, False
+
+        def reset_input_buffer(self):
+            if self.fail == "reset":
+                raise serial.SerialException("device reports readiness to read but returned no data")
+
+        def write(self, data):
+            if self.fail == "write":
+                raise serial.SerialTimeoutException("Write timeout")
+            return len(data)
+
+        def read(self, n):
+            time.sleep(0.01)
+            return b""
+
+        def close(self):
+            self.closed = True
+
+    for fail in ("write", "reset"):
+        ports = []
+        link = SerialLink("fake", reconnect_backoff_s=(0.01,), opener=lambda: ports.append(Port(fail)) or ports[-1])
+        with link:
+            if fail == "write":
+                assert link.wait_connected(5.0)
+                assert link.stats.write_timeouts == 1 and link.stats.open_failures == 0 and len(ports) == 1
+            else:
+                assert wait_until(lambda: link.stats.open_failures >= 3, 5.0)
+                assert not link.connected and all(p.closed for p in ports[:-1])
+
+
 def test_stopping_the_simulator_lets_the_host_read_what_is_on_the_line(tmp_path):
     # A pseudo-terminal discards unread bytes when it closes; stop() waits for a reader that is slow but reading.
     sim = McuSimulator(PtyEndpoint(tmp_path / "tty"), odom_rate_hz=1.0, heartbeat_period_s=100.0)

@@ -82,3 +82,18 @@ def test_implausible_round_trips_are_rejected():
     assert sync.summary()["rejected_samples"] == 2
     with pytest.raises(ValueError, match="window_s"):
         ClockSync(window_s=0)
+
+
+def test_conversions_are_exact_on_an_epoch_clock():
+    """A host clock in epoch nanoseconds (``clock_ns=time.time_ns``, 1.7e18) has no exact float: the conversions
+    summed in floats were off by tens of nanoseconds with no drift at all. Integer nanoseconds throughout."""
+    sync = ClockSync()
+    host0 = 1_732_000_000_123_456_789
+    off = host0 - 5_000_000_001  # the MCU booted 5 s before
+    for k in range(3):
+        t1 = host0 + k * 500_000_000
+        sync.add_two_way(t1, t1 - off + 100_000, t1 - off + 100_000, t1 + 200_000)
+    offset = sync.offset_ns()
+    assert isinstance(offset, int) and sync.offset_ns(host0) == offset
+    mcu = 6_000_000_008
+    assert sync.mcu_to_host_ns(mcu) == mcu + offset and sync.host_to_mcu_ns(mcu + offset) == mcu
