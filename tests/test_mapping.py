@@ -246,6 +246,34 @@ def test_corrupted_map_files_raise_the_named_error(tmp_path, living_map):
     negative = tmp_path / "negative_free_key.npz"
     _rewrite(good, negative, negative_key)
 
+    def entry(name, value):  # the entry ``name`` replaced with .npy data of ``value``, or with raw bytes
+        def change(item, data):
+            if item != name:
+                return data
+            if isinstance(value, bytes):
+                return value
+            buf = io.BytesIO()
+            np.save(buf, value)
+            return buf.getvalue()
+        return change
+
+    encrypted = tmp_path / "encrypted_flag.npz"  # one flipped bit: zipfile raised RuntimeError (password required)
+    flagged = bytearray(raw)
+    flagged[flagged.rfind(b"PK\x01\x02") + 8] ^= 1
+    encrypted.write_bytes(bytes(flagged))
+    not_npy = tmp_path / "not_npy.npz"  # numpy returned the entry's bytes, and .dtype raised AttributeError
+    _rewrite(good, not_npy, entry("observations.npy", b"hello"))
+    huge = tmp_path / "huge_header.npz"  # a header declaring 8 TiB: MemoryError
+    header = io.BytesIO()
+    np.lib.format.write_array_header_1_0(header, {"descr": "<i8", "fortran_order": False, "shape": (2**40,)})
+    _rewrite(good, huge, entry("observations.npy", b"\x93NUMPY\x01\x00" + header.getvalue()[8:]))
+    deep = tmp_path / "deep_meta.npz"  # RecursionError from json
+    _rewrite(good, deep, entry("meta.npy", np.frombuffer(b"[" * 100_000 + b"]" * 100_000, np.uint8)))
+    gravity_cases = {}
+    for k, g in enumerate(([np.nan, 0.0, -1.0], [np.inf, 0.0, 0.0], [0.0, 0.0, -5.0])):
+        gravity_cases[tmp_path / f"gravity{k}.npz"] = g  # loaded as no gravity, or scaled to unit length
+        _rewrite(good, tmp_path / f"gravity{k}.npz", entry("plane_gravity.npy", np.array(g)))
+
     empty = tmp_path / "empty.npz"
     empty.write_bytes(b"")
     single = tmp_path / "single.npz"
@@ -262,12 +290,29 @@ def test_corrupted_map_files_raise_the_named_error(tmp_path, living_map):
         old: f"version {MAP_FORMAT_VERSION + 1}",
         negative: r"free_keys: expected sorted unique voxel keys \(>= 0\)",
         tmp_path / "missing.npz": "no such file",
+        encrypted: "truncated or corrupted",
+        not_npy: "corrupted: entry 'observations' is not an array",
+        huge: "truncated or corrupted: cannot read its arrays",
+        deep: "truncated or corrupted: cannot read the metadata",
+        **{path: r"corrupted: gravity .* is not a direction" for path in gravity_cases},
     }
     for path, pattern in cases.items():
         with pytest.raises(MapFileError, match=pattern) as info:
             load_map(path)
         assert str(path) in str(info.value)
         assert "pickle" not in str(info.value)  # numpy's words for a non-zip file would mislead
+
+
+def test_a_map_with_broken_planes_is_not_written(tmp_path, living_map):
+    """What load_map refuses as corrupted is never written: a map with a NaN normal was saved, then unreadable."""
+    from dataclasses import replace
+
+    _, pm = living_map
+    normals = pm.planes.normals.copy()
+    normals[0] = [np.nan, 0.0, 1.0]
+    with pytest.raises(ValueError, match="plane_map.planes: expected finite plane geometry, got non-finite normals"):
+        save_map(tmp_path / "bad.npz", PlaneMap(replace(pm.planes, normals=normals), pm.observations))
+    assert not (tmp_path / "bad.npz").exists()
 
 
 def test_plane_map_validates_its_inputs(living_map):

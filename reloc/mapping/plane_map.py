@@ -33,8 +33,10 @@ MAP_FORMAT_VERSION = 1
 BENT_OFF_M = 0.06
 BENT_FRACTION = 0.25
 _PREFIX = "plane_"
-# What reading a damaged archive raises (a flipped bit in an entry's compression method: NotImplementedError).
-_UNREADABLE = (zipfile.BadZipFile, zlib.error, EOFError, OSError, ValueError, NotImplementedError)
+# What reading a damaged archive raises (a flipped bit in an entry's compression method: NotImplementedError; in
+# its flags: RuntimeError, "encrypted, password required"; an array header declaring terabytes: MemoryError).
+_UNREADABLE = (zipfile.BadZipFile, zlib.error, EOFError, OSError, ValueError, NotImplementedError, RuntimeError,
+               MemoryError)
 _INT_ENTRIES = {_PREFIX + "counts", _PREFIX + "sample_ptr", "observations", "free_keys"}
 _FLOAT_ENTRIES = {_PREFIX + name for name in ("normals", "offsets", "centroids", "radii", "areas", "covariances",
                                               "sums", "scatters", "sample_points", "gravity",
@@ -136,6 +138,7 @@ def save_map(path, plane_map: PlaneMap) -> Path:
     """Write ``plane_map`` to ``path`` (.npz) atomically; ``meta`` gains format, version, plane count and time."""
     if not isinstance(plane_map, PlaneMap):
         raise ValueError(f"plane_map: expected a PlaneMap, got {type(plane_map).__name__}")
+    plane_map.planes.check_geometry("plane_map.planes")  # what load_map refuses is never written
     path = Path(path)
     meta = dict(plane_map.meta)
     meta.update(
@@ -179,7 +182,7 @@ def load_map(path) -> PlaneMap:
             raise MapFileError(path, f"not a map file: no 'meta' entry (entries: {', '.join(npz.files[:8])})")
         try:
             meta = json.loads(bytes(np.asarray(npz["meta"], dtype=np.uint8)).decode("utf-8"))
-        except (*_UNREADABLE, TypeError) as exc:
+        except (*_UNREADABLE, TypeError, RecursionError) as exc:
             raise MapFileError(path, f"truncated or corrupted: cannot read the metadata ({exc})") from None
         if not isinstance(meta, dict) or meta.get("format") != MAP_FORMAT:
             got = meta.get("format") if isinstance(meta, dict) else type(meta).__name__
@@ -196,6 +199,8 @@ def load_map(path) -> PlaneMap:
             raise MapFileError(path, f"truncated or corrupted: cannot read its arrays ({exc})") from None
     # Numbers only, of the kind each array holds: no text parsed as numbers, no records, no complex values.
     for name, arr in arrays.items():
+        if not isinstance(arr, np.ndarray):  # an entry that is not .npy data comes back as its bytes
+            raise MapFileError(path, f"corrupted: entry {name!r} is not an array ({type(arr).__name__})")
         want = "iu" if name in _INT_ENTRIES else "f" if name in _FLOAT_ENTRIES else None
         if want is not None and arr.dtype.kind not in want:
             raise MapFileError(path, f"corrupted: array {name!r} has dtype {arr.dtype}, expected "
@@ -204,6 +209,16 @@ def load_map(path) -> PlaneMap:
     if isinstance(free_voxel_m, bool) or not isinstance(free_voxel_m, (int, float)) or not (
             math.isfinite(free_voxel_m) and free_voxel_m >= 0):
         raise MapFileError(path, f"corrupted: metadata free_voxel_m {free_voxel_m!r}, expected a finite number >= 0")
+    raw_g = arrays.get(_PREFIX + "gravity")
+    if raw_g is not None:
+        # Stored as NaN when there is none; a PlaneSet takes any other non-finite vector for none too, and scales a
+        # long one to unit length, so a damaged vector is refused here.
+        g = raw_g.astype(np.float64).reshape(-1)
+        with np.errstate(over="ignore"):  # a huge finite vector is refused below, not warned about
+            unit = g.shape == (3,) and bool(np.all(np.isfinite(g))) and abs(float(np.linalg.norm(g)) - 1.0) < 1e-6
+        if not (unit or (g.shape == (3,) and np.all(np.isnan(g)))):
+            raise MapFileError(path, f"corrupted: gravity {g.tolist()} is not a direction (expected a unit 3-vector, "
+                                     "or NaN for none)")
     try:
         planes = PlaneSet.from_arrays(arrays, _PREFIX, frame="map")
         observations = arrays["observations"]
@@ -215,10 +230,6 @@ def load_map(path) -> PlaneMap:
         raise MapFileError(path, f"corrupted: missing array {exc}") from None
     except (ValueError, TypeError) as exc:
         raise MapFileError(path, f"corrupted: inconsistent arrays ({exc})") from None
-    g = planes.gravity
-    if g is not None and not (np.all(np.isfinite(g)) and abs(np.linalg.norm(g) - 1.0) < 1e-6):
-        raise MapFileError(path, f"corrupted: gravity {np.asarray(arrays[_PREFIX + 'gravity']).tolist()} is not a "
-                                 "direction (expected a non-zero finite 3-vector, or NaN for none)")
     if meta.get("plane_count") != len(plane_map):
         raise MapFileError(path, f"corrupted: metadata says {meta.get('plane_count')} planes, arrays hold "
                                  f"{len(plane_map)}")
