@@ -59,6 +59,9 @@ def _record(spec, out_dir, n_frames, duration_s, rate, config_file, options, ove
         raise click.BadParameter("--rate applies to sim, replay and rosbag sources only", param_hint="--rate")
     if kind == "sim" and n_frames is not None:
         kwargs.setdefault("n_frames", n_frames)
+    if config_file is not None and kind != "oak":
+        raise click.BadParameter(f"--config sets up OAK cameras (its oak section); a {kind} source takes its "
+                                 "settings from -o KEY=VALUE", param_hint="--config")
     if kind == "oak":
         from drivers.oak import oak_kwargs_from_config
         from reloc.config import load_config

@@ -40,7 +40,7 @@ import numpy as np
 
 from reloc.camera import DepthFrame, Intrinsics
 
-from drivers.source import FrameSource, SourceError
+from drivers.source import FrameSource, SourceError, check_flag
 
 __all__ = [
     "OakSource",
@@ -407,11 +407,12 @@ class OakSource(FrameSource):
         backoff = tuple(float(b) for b in backoff_s)
         if not backoff or min(backoff) < 0:
             raise ValueError(f"backoff_s: expected a non-empty list of waits >= 0, got {list(backoff_s)}")
-        self.settings = dict(preset=preset, width=width, height=height, fps=float(fps), subpixel=bool(subpixel),
-                             lr_check=bool(lr_check), extended_disparity=bool(extended_disparity), align_to=align_to,
-                             imu=bool(imu), imu_rate_hz=int(imu_rate_hz))
+        self.settings = dict(preset=preset, width=width, height=height, fps=float(fps),
+                             subpixel=check_flag("subpixel", subpixel), lr_check=check_flag("lr_check", lr_check),
+                             extended_disparity=check_flag("extended_disparity", extended_disparity),
+                             align_to=align_to, imu=check_flag("imu", imu), imu_rate_hz=int(imu_rate_hz))
         self.gravity_tau_s = float(gravity_tau_s)
-        self.reconnect = bool(reconnect)
+        self.reconnect = check_flag("reconnect", reconnect)
         self.backoff_s = backoff
         self.max_reconnects = max_reconnects
         self.frame_timeout_s = float(frame_timeout_s)

@@ -16,7 +16,7 @@ import numpy as np
 from reloc.camera import DepthFrame, Intrinsics
 
 from drivers.readers import Sequence, open_sequence, read_noise_law
-from drivers.source import FrameSource, Pacer, parse_rate
+from drivers.source import FrameSource, Pacer, check_flag, parse_rate
 
 __all__ = ["ReplaySource"]
 
@@ -43,7 +43,7 @@ class ReplaySource(FrameSource):
         self.name = f"replay:{Path(seq.path)}"
         self.rate = parse_rate(rate)
         self.speed = speed
-        self.loop = bool(loop)
+        self.loop = check_flag("loop", loop)
         Pacer(self.rate, speed=speed)  # validate now, not at the first frame
 
     @property

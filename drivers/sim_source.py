@@ -12,7 +12,7 @@ from typing import Iterator
 
 from reloc.camera import DepthFrame, Intrinsics
 
-from drivers.source import FrameSource, Pacer, parse_rate
+from drivers.source import FrameSource, Pacer, check_flag, parse_rate
 
 __all__ = ["SimSource"]
 
@@ -37,7 +37,7 @@ class SimSource(FrameSource):
         self.camera = sim.make_camera(scene, trajectory, n_frames, noise, camera, seed, scene_seed=scene_seed,
                                       people=people, rate_hz=rate_hz, width=width, height=height)
         self.scene = self.camera.scene
-        self.loop = bool(loop)
+        self.loop = check_flag("loop", loop)
         self.name = f"sim:{self.scene.name}"
         self._info = {"scene": self.scene.name, "scene_seed": scene_seed, "trajectory": trajectory,
                       "n_frames": n_frames, "noise": noise, "seed": seed, "people": people}

@@ -33,7 +33,8 @@ import numpy as np
 
 from reloc.camera import DepthFrame, Intrinsics
 
-__all__ = ["FrameSource", "SourceError", "Pacer", "parse_rate", "check_frame_contract", "open_source", "SOURCE_SPECS"]
+__all__ = ["FrameSource", "SourceError", "Pacer", "RATE_RANGE_HZ", "check_flag", "parse_rate", "check_frame_contract",
+           "open_source", "SOURCE_SPECS"]
 
 # Looked up when a Pacer is made, so tests can replace them.
 _monotonic = time.monotonic
@@ -103,6 +104,18 @@ class FrameSource(ABC):
         return {"name": self.name, "intrinsics": self.intrinsics.as_dict(), "rate_hz": self.rate_hz}
 
 
+def check_flag(name: str, value) -> bool:
+    """``value`` if it is a yes/no (``-o loop=true`` reads as one), else ValueError naming ``name``: any text was
+    taken for yes (``loop=fasle`` looped a replay forever)."""
+    if not isinstance(value, (bool, np.bool_)):
+        raise ValueError(f"{name}: expected true or false, got {value!r}")
+    return bool(value)
+
+
+#: Frame rates a source paces at, Hz: below, a frame's wait overflows the clock; above, ask for "fast".
+RATE_RANGE_HZ = (1e-3, 1e5)
+
+
 def parse_rate(rate: "str | float | None") -> "str | float":
     """``"recorded"``, ``"fast"`` or a positive number of Hz (also as a string such as ``"15"``)."""
     if rate is None:
@@ -114,8 +127,10 @@ def parse_rate(rate: "str | float | None") -> "str | float":
             rate = float(rate)
         except ValueError:
             raise ValueError(f"rate: expected 'recorded', 'fast' or a frame rate in Hz, got {rate!r}") from None
-    if not isinstance(rate, (int, float)) or not np.isfinite(rate) or rate <= 0:
-        raise ValueError(f"rate: expected 'recorded', 'fast' or a positive frame rate in Hz, got {rate!r}")
+    if isinstance(rate, bool) or not isinstance(rate, (int, float)) or not (
+            RATE_RANGE_HZ[0] <= rate <= RATE_RANGE_HZ[1]):
+        raise ValueError(f"rate: expected 'recorded', 'fast' or a frame rate of {RATE_RANGE_HZ[0]:g} to "
+                         f"{RATE_RANGE_HZ[1]:g} Hz, got {rate!r}")
     return float(rate)
 
 

@@ -14,6 +14,8 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
+
 from reloc.camera import Intrinsics
 
 __all__ = ["PRESETS", "preset", "resolve_intrinsics"]
@@ -52,5 +54,8 @@ def resolve_intrinsics(camera: "str | Intrinsics", width: int | None = None, hei
     if width is not None or height is not None:
         if width is None or height is None:
             raise ValueError(f"width, height: give both or neither, got width={width}, height={height}")
+        for name, v in (("width", width), ("height", height)):
+            if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or not 8 <= v <= 4096:
+                raise ValueError(f"{name}: expected a whole number of pixels from 8 to 4096, got {v!r}")
         intr = intr.scaled(int(width), int(height))
     return intr

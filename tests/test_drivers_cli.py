@@ -52,3 +52,26 @@ def test_record_errors(tmp_path, capsys):
     assert "unknown frame source 'webcam'" in capsys.readouterr().err
     assert main(["record", "--camera", "sim", "--out", str(tmp_path / "x"), "-o", "bad"]) == 2
     assert "expected KEY=VALUE, got 'bad'" in capsys.readouterr().err
+
+
+def test_options_a_source_cannot_take_are_refused_by_name(tmp_path, capsys):
+    """Each escaped before: --config was silently ignored for every camera but oak; loop=fasle (any text) looped a
+    replay forever; rates of 1e-300 Hz and sizes of 100,000 pixels ended in OverflowError and MemoryError."""
+    config = tmp_path / "c.yaml"
+    config.write_text("oak:\n  fps: 15.0\n")
+    out = str(tmp_path / "r")
+    cases = [
+        (["--config", str(config)], "--config sets up OAK cameras"),
+        (["-o", "loop=fasle"], "loop: expected true or false, got 'fasle'"),
+        (["--rate", "1e-300"], "rate: expected 'recorded', 'fast' or a frame rate of 0.001 to 100000 Hz"),
+        (["-o", "rate_hz=0.0000001"], "rate_hz: expected a frame rate of 0.001 to 1e5 Hz"),
+        (["-o", "width=100000", "-o", "height=100000"], "width: expected a whole number of pixels from 8 to 4096"),
+    ]
+    for extra, message in cases:
+        assert main(["record", "--camera", "sim:living_room", "--out", out, "--frames", "2", *extra]) == 2, extra
+        err = capsys.readouterr().err
+        assert message in err and "Traceback" not in err
+    assert main(["sim", "office", "--frames", "2", "--rate-hz", "1e-300", "-o", str(tmp_path / "s")]) == 2
+    too_wide = ["--width", "100000", "--height", "60"]
+    assert main(["sim", "office", "--frames", "2", *too_wide, "-o", str(tmp_path / "s")]) == 2
+    assert not (tmp_path / "r").exists() and not (tmp_path / "s").exists()

@@ -215,3 +215,24 @@ def test_map_build_names_planes_fused_across_two_surfaces():
     note = bent_planes_note({"bent_planes": 2, "bent_area_m2": 4.9, "samples_off_plane_fraction": 0.0125})
     assert note.startswith("note: 2 planes (4.9 m^2) have more than 25% of their samples more than 6 cm off them")
     assert "1.2% of all samples" in note
+
+
+def test_locate_and_planes_fail_when_every_frame_fails(office_sequence, tmp_path, capsys):
+    """Every depth image unreadable: each frame's error is written, and the command no longer ends with exit 0."""
+    import shutil
+
+    broken = tmp_path / "broken"
+    shutil.copytree(office_sequence, broken)
+    for png in (broken / "depth").glob("*.png"):
+        png.write_bytes(b"not a png")
+    map_path = tmp_path / "m.npz"
+    assert main(["map", "build", str(office_sequence), "-o", str(map_path), "--source", "oracle", "--quiet"]) == 0
+    results = tmp_path / "results.jsonl"
+    assert main(["locate", "--map", str(map_path), str(broken), "--frames", "0:3", "-o", str(results),
+                 "--quiet"]) == 1
+    lines = [json.loads(x) for x in results.read_text().splitlines()]
+    assert len(lines) == 3 and all(x["status"] == "error" and "not a readable PNG" in x["reason"] for x in lines)
+    assert "every query failed" in capsys.readouterr().err
+    planes = tmp_path / "planes.jsonl"
+    assert main(["planes", str(broken), "--frames", "0:3", "-o", str(planes), "--quiet"]) == 1
+    assert len(planes.read_text().splitlines()) == 3 and "every frame failed (3)" in capsys.readouterr().err

@@ -164,3 +164,5 @@ def locate(seq, map_path, out_path, frames_spec, window, max_window, stride, eve
     ident = f"; {identifiable} identifiable at the sequence's poses" if check_poses else ""
     click.echo(f"{out_path}: {len(lines)} queries: {counts['relocalized']} relocalized, {counts['rejected']} rejected, "
                f"{counts['error']} errors{med}{ident}")
+    if lines and counts["error"] == len(lines):
+        raise click.ClickException(f"every query failed (the first: {json.loads(lines[0])['reason']})")

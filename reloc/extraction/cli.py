@@ -104,3 +104,5 @@ def planes(input_path, frames_spec, config_path, out_path, quiet):
     atomic_write_text(out.with_name(out.stem + ".config.yaml"), yaml.safe_dump(config_as_dict(cfg), sort_keys=False))
     click.echo(f"{out}: {n_ok} frame(s)" + (f", {n_failed} failed (see their error lines)" if n_failed else ""),
                err=True)
+    if n_failed and not n_ok:
+        raise click.ClickException(f"every frame failed ({n_failed}); their errors are in {out}")
