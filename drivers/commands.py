@@ -8,15 +8,16 @@ from drivers.source import SOURCE_SPECS
 
 
 def _source_options(pairs: tuple[str, ...]) -> dict:
-    """``KEY=VALUE`` pairs -> constructor keywords; values are YAML scalars (``n_frames=50``, ``loop=true``)."""
-    import yaml
+    """``KEY=VALUE`` pairs -> constructor keywords; values are YAML scalars (``n_frames=50``, ``loop=true``,
+    ``rate_hz=1e3``)."""
+    from reloc.config import load_yaml
 
     out = {}
     for pair in pairs:
         key, sep, value = pair.partition("=")
         if not sep or not key.isidentifier():
             raise click.BadParameter(f"expected KEY=VALUE, got {pair!r}", param_hint="--option")
-        out[key] = yaml.safe_load(value) if value else ""
+        out[key] = load_yaml(value) if value else ""
     return out
 
 

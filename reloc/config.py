@@ -11,6 +11,7 @@ Stage functions never take this object; factories and the CLI read it and pass p
 from __future__ import annotations
 
 import io
+import re
 import reprlib
 from pathlib import Path
 from typing import Annotated, Any, Literal
@@ -18,8 +19,8 @@ from typing import Annotated, Any, Literal
 import yaml
 from pydantic import BaseModel, ConfigDict, Field, Strict, ValidationError, model_validator
 
-__all__ = ["Config", "ConfigError", "load_config", "config_from_dict", "dump_config", "default_config",
-           "with_noise_law"]
+__all__ = ["Config", "ConfigError", "YamlLoader", "load_config", "config_from_dict", "dump_config", "default_config",
+           "load_yaml", "with_noise_law"]
 
 # Sequences come from YAML lists; they are accepted as lists and stored as tuples (not a correction of a value).
 FloatSeq = Annotated[tuple[float, ...], Strict(False)]
@@ -821,6 +822,20 @@ def config_from_dict(data: Any, source: str = "<config>") -> Config:
         raise ConfigError(source, _format_pydantic(exc)) from None
 
 
+class YamlLoader(yaml.SafeLoader):
+    """PyYAML's safe loader, reading ``2e-3`` as a number as YAML 1.2 does (PyYAML follows YAML 1.1, which wants
+    ``2.0e-3``, so a config's ``noise_coeff: 2e-3`` was refused as text)."""
+
+
+YamlLoader.add_implicit_resolver("tag:yaml.org,2002:float", re.compile(r"^[-+]?[0-9][0-9_]*[eE][-+]?[0-9]+$"),
+                                 list("-+0123456789"))
+
+
+def load_yaml(text: str):
+    """``yaml.safe_load`` with :class:`YamlLoader`."""
+    return yaml.load(text, Loader=YamlLoader)  # noqa: S506 - a SafeLoader subclass
+
+
 def load_config(path: str | Path | None) -> Config:
     """Load and validate a YAML config file; ``None`` gives the defaults. Raises :class:`ConfigError`."""
     if path is None:
@@ -836,8 +851,8 @@ def load_config(path: str | Path | None) -> Config:
     except UnicodeDecodeError as exc:
         raise ConfigError(source, [f"not UTF-8 text (byte {exc.start}): expected a YAML file"]) from None
     try:
-        node = yaml.compose(io.StringIO(text), Loader=yaml.SafeLoader)
-        data = yaml.safe_load(text)
+        node = yaml.compose(io.StringIO(text), Loader=YamlLoader)
+        data = load_yaml(text)
     except yaml.YAMLError as exc:
         raise ConfigError(source, [f"not valid YAML: {exc}"]) from None
     except RecursionError:

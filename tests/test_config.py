@@ -43,6 +43,15 @@ def test_dump_round_trips(tmp_path):
     assert load_config(p2) == Config()
 
 
+def test_a_number_written_with_an_exponent_and_no_point_is_a_number(tmp_path):
+    """YAML 1.2 reads ``2e-3`` as a number; PyYAML (YAML 1.1) read it as text and the config was refused ("Input
+    should be a valid number, got '2e-3'"). A word that only looks like one stays text, and is refused as such."""
+    cfg = load_config(write(tmp_path, "extraction:\n  noise_coeff: 2e-3\n  irls_kernel_sigmas: 25E-1\n"))
+    assert cfg.extraction.noise_coeff == 0.002 and cfg.extraction.irls_kernel_sigmas == 2.5
+    with pytest.raises(ConfigError, match=r"extraction.noise_coeff: .*'2e'"):
+        load_config(write(tmp_path, "extraction:\n  noise_coeff: 2e\n"))
+
+
 def test_every_problem_reported_with_its_path(tmp_path):
     text = """
 extraction:
