@@ -15,9 +15,20 @@ import stat
 from pathlib import Path
 from typing import IO, Iterator
 
-__all__ = ["atomic_write", "atomic_write_bytes", "atomic_write_text"]
+__all__ = ["atomic_write", "atomic_write_bytes", "atomic_write_text", "make_parent"]
 
 _CREATE_FLAGS = os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_CLOEXEC", 0) | getattr(os, "O_BINARY", 0)
+
+
+def make_parent(target: Path) -> None:
+    """Create the folders ``target`` goes in; ``NotADirectoryError`` naming the file in the way when one of them is
+    a file (``mkdir`` says only "File exists: 'out'")."""
+    try:
+        target.parent.mkdir(parents=True, exist_ok=True)
+    except (FileExistsError, NotADirectoryError):
+        blocking = next((p for p in (target.parent, *target.parent.parents) if p.exists() and not p.is_dir()), None)
+        raise NotADirectoryError(errno.ENOTDIR, f"cannot make the folder of {target}: {blocking or target.parent} "
+                                                "is a file, not a folder") from None
 
 
 def _umask() -> int:
@@ -51,7 +62,7 @@ def atomic_write(path: str | os.PathLike, mode: str = "wb") -> Iterator[IO]:
     if mode not in ("w", "wb"):
         raise ValueError(f"mode: expected 'w' or 'wb', got {mode!r}")
     target = Path(path)
-    target.parent.mkdir(parents=True, exist_ok=True)
+    make_parent(target)
     mode_bits = _final_mode(target)
     # The temporary file's name is known before it exists, so that an interrupt (Ctrl-C, SIGTERM turned into an
     # exception) arriving right after it is created still finds it to remove: with tempfile.mkstemp the name only

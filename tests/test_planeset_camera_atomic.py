@@ -157,6 +157,13 @@ def test_depth_frame_pose_source_has_one_spelling():
             DepthFrame(d, K, stamp_ns=0, pose_source=other)
 
 
+def test_atomic_write_names_the_file_in_the_way_of_its_folder(tmp_path):
+    (tmp_path / "out").write_text("")
+    with pytest.raises(NotADirectoryError, match=r"cannot make the folder of .*x.txt: .*out is a file, not a folder"):
+        atomic_write_text(tmp_path / "out" / "sub" / "x.txt", "x")
+    assert (tmp_path / "out").read_text() == ""
+
+
 def test_atomic_write_keeps_old_file_on_failure(tmp_path):
     target = tmp_path / "map.npz"
     atomic_write_text(target, "old")

@@ -199,6 +199,12 @@ def test_bad_files_are_named(files, tmp_path, capsys):
     assert main(["plot", "map", str(files["map"]), "--results", str(lines), "-o", str(tmp_path / "x.png")]) == 2
     err = capsys.readouterr().err
     assert f"{lines}:1" in err and "T_map_cam" in err
+    # A frame out of range names the option it came from (each said --frames, which these commands do not have).
+    assert main(["plot", "frame", str(files["seq"]), "--index", "1000", "-o", str(tmp_path / "x.png")]) == 2
+    assert "Invalid value for --index: index 1000 outside the" in capsys.readouterr().err
+    assert main(["plot", "map", str(files["map"]), "--submap", str(files["seq"]), "--frame", "1000",
+                 "-o", str(tmp_path / "x.png")]) == 2
+    assert "Invalid value for --frame: index 1000 outside the" in capsys.readouterr().err
     assert not (tmp_path / "x.png").exists()
 
 

@@ -170,6 +170,19 @@ def test_bad_options_are_named(args, message):
     assert result.exit_code != 0 and message in result.output
 
 
+def test_an_output_whose_folder_cannot_be_made_is_refused_before_the_run(tmp_path):
+    """--trace into a folder that is a file: the run went ahead, wrote --json, then failed with "[Errno 17] File
+    exists: 'afile'"; now it is refused first, naming the option and the file in the way."""
+    (tmp_path / "afile").write_text("")
+    result = CliRunner().invoke(cli, ["profile", "--camera", "sim:living_room", "--map", "sim:living_room",
+                                      "--frames", "2", "--json", str(tmp_path / "p.json"),
+                                      "--trace", str(tmp_path / "afile" / "t.json")])
+    assert result.exit_code == 2
+    assert f"Invalid value for --trace: cannot make the folder of {tmp_path / 'afile' / 't.json'}: " in result.output
+    assert f"{tmp_path / 'afile'} is a file, not a folder" in result.output.replace("\n", "")
+    assert not (tmp_path / "p.json").exists()
+
+
 def test_frames_that_compile_or_have_no_depth_are_left_out_of_the_stage_times(monkeypatch):
     """A frame during which numba compiled goes to the compile time; a frame without depth is counted as bad."""
     from types import SimpleNamespace

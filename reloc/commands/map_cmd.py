@@ -7,10 +7,11 @@ import click
 SOURCES = ("extraction", "oracle")
 
 
-def parse_frames(spec: str | None, n: int) -> range:
+def parse_frames(spec: str | None, n: int, param_hint: str = "--frames") -> range:
     """Frame indices of ``a:b`` (Python slice semantics, either end optional, negative from the end) or ``i``.
 
-    A range that selects no frame (``5:2``, or past the end) is an error, not an empty run."""
+    A range that selects no frame (``5:2``, or past the end) is an error naming ``param_hint`` (the option it came
+    from), not an empty run."""
     if spec is None:
         return range(n)
     text = spec.strip()
@@ -19,13 +20,13 @@ def parse_frames(spec: str | None, n: int) -> range:
             a, _, b = text.partition(":")
             picked = range(n)[slice(int(a) if a.strip() else None, int(b) if b.strip() else None)]
             if len(picked) == 0:
-                raise click.BadParameter(f"{spec!r} selects none of the {n} frames (0:{n})", param_hint="--frames")
+                raise click.BadParameter(f"{spec!r} selects none of the {n} frames (0:{n})", param_hint=param_hint)
             return picked
         i = int(text)
     except ValueError:
-        raise click.BadParameter(f"expected a:b or an index, got {spec!r}", param_hint="--frames") from None
+        raise click.BadParameter(f"expected a:b or an index, got {spec!r}", param_hint=param_hint) from None
     if not -n <= i < n:
-        raise click.BadParameter(f"index {i} outside the {n} frames", param_hint="--frames")
+        raise click.BadParameter(f"index {i} outside the {n} frames", param_hint=param_hint)
     return range(n)[i: i + 1 or None]
 
 

@@ -22,6 +22,7 @@ from __future__ import annotations
 import math
 import time
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import click
 import numpy as np
@@ -330,7 +331,7 @@ def profile(camera, map_spec, frames, window, mode, warmup_frames, size, json_pa
     import json
 
     from drivers.source import SourceError
-    from reloc.atomic import atomic_write_text
+    from reloc.atomic import atomic_write_text, make_parent
     from reloc.config import config_as_dict, load_config
     from reloc.live.factory import (
         load_plane_map,
@@ -342,6 +343,12 @@ def profile(camera, map_spec, frames, window, mode, warmup_frames, size, json_pa
     )
 
     cfg = load_config(config_path)
+    for option, target in (("--json", json_path), ("--trace", trace_path)):
+        if target:  # before the run, not after it: a folder that cannot be made wastes the run and half its output
+            try:
+                make_parent(Path(target))
+            except OSError as exc:
+                raise click.BadParameter(exc.strerror or str(exc), param_hint=option) from None
     k = window or cfg.mapping.submap_window_frames
     echo = (lambda s: None) if quiet else (lambda s: click.echo(s, err=True))
     kwargs = _parse_size(size)

@@ -152,7 +152,7 @@ def plot_map(map_path, results_path, truth_seq, submap_seq, query_frame, window,
     cfg = load_config(config_path)
     mapping = MappingParams.from_config(cfg)
     seq = open_sequence(submap_seq)
-    q = parse_frames(str(query_frame), len(seq))[0]
+    q = parse_frames(str(query_frame), len(seq), "--frame")[0]
     k = window or mapping.submap_window_frames
     idx = [i for i in range(q - stride * (k - 1), q + 1, stride) if i >= 0]
     has = seq.has_pose
@@ -225,7 +225,7 @@ def plot_frame(seq, index, source, config_path, map_path, out_path, title, width
     else:
         cfg = load_config(config_path)
     sequence = open_sequence(seq)
-    i = parse_frames(str(index), len(sequence))[0]
+    i = parse_frames(str(index), len(sequence), "--index")[0]
     frame = sequence[i]
     planes = sequence_plane_source(seq, source, cfg)(frame)
     out = plot_frame_planes(frame, planes, out_path, title=title, width_px=width, height_px=height)
