@@ -13,6 +13,7 @@ import numpy as np
 
 from reloc.camera import DepthFrame, Intrinsics
 from reloc.transforms import check_transform
+from sim.cameras import RATE_RANGE_HZ
 from sim.noise import NoiseModel, make_noise
 from sim.render import render
 from sim.scenes import Scene
@@ -64,8 +65,9 @@ class SimCamera:
             raise ValueError(f"trajectory_poses: expected shape (N, 4, 4) with N >= 1, got {poses.shape}")
         for i in range(len(poses)):
             check_transform(poses[i], f"trajectory_poses[{i}]")
-        if isinstance(rate_hz, bool) or not isinstance(rate_hz, (int, float, np.number)) or not 1e-3 <= rate_hz <= 1e5:
-            raise ValueError(f"rate_hz: expected a frame rate of 0.001 to 1e5 Hz, got {rate_hz!r}")
+        lo, hi = RATE_RANGE_HZ
+        if isinstance(rate_hz, bool) or not isinstance(rate_hz, (int, float, np.number)) or not lo <= rate_hz <= hi:
+            raise ValueError(f"rate_hz: expected a frame rate of {lo:g} to {hi:g} Hz, got {rate_hz!r}")
         if not isinstance(seed, (int, np.integer)) or seed < 0:
             raise ValueError(f"seed: expected a non-negative integer, got {seed!r}")
         if not isinstance(people, (int, np.integer)) or people < 0:

@@ -18,7 +18,10 @@ import numpy as np
 
 from reloc.camera import Intrinsics
 
-__all__ = ["PRESETS", "preset", "resolve_intrinsics"]
+__all__ = ["PRESETS", "RATE_RANGE_HZ", "SIZE_RANGE_PX", "preset", "resolve_intrinsics"]
+
+SIZE_RANGE_PX = (8, 4096)  # image widths and heights a simulated camera is resampled to
+RATE_RANGE_HZ = (1e-3, 1e5)  # frame rates of a simulated camera (a slower one's stamps overflow int64 ns)
 
 
 def _from_fov(width: int, height: int, hfov_deg: float, vfov_deg: float, depth_scale: float) -> Intrinsics:
@@ -55,7 +58,8 @@ def resolve_intrinsics(camera: "str | Intrinsics", width: int | None = None, hei
         if width is None or height is None:
             raise ValueError(f"width, height: give both or neither, got width={width}, height={height}")
         for name, v in (("width", width), ("height", height)):
-            if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or not 8 <= v <= 4096:
-                raise ValueError(f"{name}: expected a whole number of pixels from 8 to 4096, got {v!r}")
+            lo, hi = SIZE_RANGE_PX
+            if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or not lo <= v <= hi:
+                raise ValueError(f"{name}: expected a whole number of pixels from {lo} to {hi}, got {v!r}")
         intr = intr.scaled(int(width), int(height))
     return intr

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import click
 
+from sim.cameras import RATE_RANGE_HZ, SIZE_RANGE_PX
+
 SCENES = ("living_room", "office", "apartment", "corridor", "meeting_rooms", "symmetric_room", "random", "building")
 CAMERAS = ("oak-d", "kinect", "l515", "wide-tof")
 NOISES = ("none", "stereo", "kinect", "tof")
@@ -20,11 +22,10 @@ NOISES = ("none", "stereo", "kinect", "tof")
               help="Layout seed of the generated scenes (random, building).")
 @click.option("--noise", type=click.Choice(NOISES), default="kinect", show_default=True)
 @click.option("--camera", type=click.Choice(CAMERAS), default="kinect", show_default=True)
-@click.option("--width", type=click.IntRange(min=8, max=4096), default=None,
-              help="Resample the camera to this width...")
-@click.option("--height", type=click.IntRange(min=8, max=4096), default=None, help="...and this height.")
+@click.option("--width", type=click.IntRange(*SIZE_RANGE_PX), default=None, help="Resample the camera to this width...")
+@click.option("--height", type=click.IntRange(*SIZE_RANGE_PX), default=None, help="...and this height.")
 @click.option("--people", type=click.IntRange(min=0), default=0, show_default=True, help="Walking people (clutter).")
-@click.option("--rate-hz", type=click.FloatRange(min=1e-3, max=1e5), default=30.0, show_default=True)
+@click.option("--rate-hz", type=click.FloatRange(*RATE_RANGE_HZ), default=30.0, show_default=True)
 @click.option("-o", "--out", "out_dir", type=click.Path(file_okay=False), required=True, help="Output directory.")
 @click.option("--overwrite", is_flag=True, help="Replace a sequence already in --out.")
 def sim(scene, trajectory, n_frames, seed, scene_seed, noise, camera, width, height, people, rate_hz, out_dir,

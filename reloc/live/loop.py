@@ -704,8 +704,7 @@ class LiveLoop:
                         if not self._frames_usable():
                             # No usable frames (camera starting, lost, stalled, or only bad frames): say so now, do
                             # not make the firmware wait.
-                            self._post(("reloc", None, self.clock_ns(), 0.0, ev.request_id,
-                                        "not_ready: no usable camera frames"))
+                            self._post(("reloc", None, self.clock_ns(), 0.0, ev.request_id, _NO_FRAMES))
                         else:
                             self.request_relocalization("request", ev.request_id)
                     elif isinstance(ev, BridgeEvent):
@@ -720,7 +719,7 @@ class LiveLoop:
                 if not self._frames_usable():
                     # Requests taken while frames were usable wait for the next usable frame; none came since.
                     for rid in self._take_firmware_requests():
-                        self._post(("reloc", None, self.clock_ns(), 0.0, rid, "not_ready: no usable camera frames"))
+                        self._post(("reloc", None, self.clock_ns(), 0.0, rid, _NO_FRAMES))
                 while True:
                     try:
                         item = self._outbox.get_nowait()
@@ -884,6 +883,9 @@ class LiveLoop:
             relocs_ok_total=self.relocs_ok_total, latency_ms=latency, end_to_end_ms=e2e, bridge=bridge,
             faults=faults, errors=list(self.errors),
         )
+
+
+_NO_FRAMES = "not_ready: no usable camera frames"  # the answer to a request no frame can serve
 
 
 def _carry_trigger(dropped: tuple, oldest: tuple) -> tuple:
