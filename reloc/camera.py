@@ -102,9 +102,10 @@ class Intrinsics:
             raise ValueError(f"{source}: {exc}") from None
 
 
-def gravity_from_camera_y() -> np.ndarray:
-    """Gravity direction (unit, pointing down) for a level camera: +y of the optical frame."""
-    return np.array([0.0, 1.0, 0.0])
+def gravity_from_camera_y(intrinsics: Intrinsics | None = None) -> np.ndarray:
+    """Gravity direction (unit, pointing down) for a level camera: +y of the optical frame, or -y for
+    ``intrinsics`` with a negative ``fy`` (ICL-NUIM: their points come out with y up)."""
+    return np.array([0.0, -1.0 if intrinsics is not None and intrinsics.fy < 0 else 1.0, 0.0])
 
 
 #: What a frame's ``T_world_cam`` is: exact (a dataset's or the simulator's ground truth), odometry, or absent.

@@ -413,3 +413,45 @@ def _tilts_at_the_door_niche(distance_m, **changes):
     normals_world = ps.normals @ T[:3, :3].T
     facing = (np.abs(normals_world[:, 1]) > np.cos(np.radians(30))) & (ps.counts >= 500)
     return np.degrees(np.arccos(np.clip(np.abs(normals_world[facing, 1]), 0.0, 1.0)))
+
+
+def test_a_depth_limit_thousands_of_kilometres_deep_gives_the_same_planes():
+    """``max_depth_m`` set far past any depth ("no limit"): the frustum's cell count (7e19 at 1,000 km and 25 cm
+    voxels) wrapped round in int64, passed the dense-table guard, and the key pass wrote outside its table (a
+    segmentation fault). The count is exact now, the frame's points are voxelized on their own, and the planes are
+    those of the 8 m limit, since every depth here is under 5.4 m."""
+    from reloc.extraction.backproject import depth_to_key_image
+    from reloc.extraction.voxelize import MAX_FRUSTUM_CELLS, frustum_box, frustum_cells
+
+    depth, _, _ = _box_room(R=_rot([0.2, 1.0, 0.1], 0.4))
+    frame = DepthFrame(depth, K, 0)
+    near = extract_planes(frame, ExtractionParams(voxel_size_m=0.25)).planes
+    box = frustum_box(K, min_depth_m=0.3, max_depth_m=1e6, voxel_size_m=0.25)
+    assert frustum_cells(box) == int(box[3]) * int(box[4]) * int(box[5]) > 7e19
+    for max_depth in (1e6, 1e9):
+        far = extract_planes(frame, ExtractionParams(voxel_size_m=0.25, max_depth_m=max_depth)).planes
+        assert len(far) == len(near) == 4
+        assert np.array_equal(far.counts, near.counts)
+        assert np.allclose(far.normals, near.normals, atol=1e-9) and np.allclose(far.offsets, near.offsets, atol=1e-9)
+    with pytest.raises(ValueError, match=f"box: {frustum_cells(box)} frustum cells, expected at most "
+                                         f"{MAX_FRUSTUM_CELLS}"):
+        depth_to_key_image(depth, K, box, voxel_size_m=0.25, max_depth_m=1e6)
+
+
+def test_the_camera_y_gravity_of_a_frame_with_a_negative_fy_points_down():
+    """ICL-NUIM's negative ``fy`` makes points with y up; the camera-y fallback gave +y (up) all the same, so the
+    floor faced down and the ground constraint paired it with ceilings. Gravity is -y for such a frame."""
+    from reloc.matching.index import horizontal_facing
+
+    for fy in (262.5, -262.5):
+        k = Intrinsics(fx=262.5, fy=fy, cx=159.5, cy=119.5, width=320, height=240)
+        v, u = np.mgrid[0:k.height, 0:k.width]
+        y_floor = 1.0 if fy > 0 else -1.0  # the floor 1 m below the camera, in the frame's own y convention
+        with np.errstate(divide="ignore"):
+            depth = np.where((v - k.cy) / k.fy * y_floor > 0.02, y_floor * k.fy / (v - k.cy), 0.0)
+        depth = np.where(depth < 6.0, depth, 0.0).astype(np.float32)
+        ps = extract_planes(DepthFrame(depth, k, 0)).planes
+        assert np.allclose(ps.gravity, [0.0, y_floor, 0.0])
+        floor = int(np.argmax(ps.areas))
+        assert np.allclose(ps.normals[floor], [0.0, -y_floor, 0.0], atol=1e-3)
+        assert horizontal_facing(ps, np.radians(15.0))[floor] == 1  # the floor faces up

@@ -10,6 +10,7 @@ from reloc.camera import Intrinsics
 from reloc.extraction import _kernels_voxel as kv
 from reloc.extraction._workspace import Workspace, fresh
 from reloc.extraction.params import noise_law_code
+from reloc.extraction.voxelize import MAX_FRUSTUM_CELLS, frustum_cells
 
 __all__ = ["depth_to_points", "depth_to_key_image", "drop_flying_pixels"]
 
@@ -89,7 +90,11 @@ def depth_to_key_image(
     cap = ((h + pixel_stride - 1) // pixel_stride) * ((w + pixel_stride - 1) // pixel_stride)
     ws = fresh(workspace)
     pixel_key = ws.get("bp_pixel_key", cap, np.int32)
-    cellcount = ws.get("vx_cellmap", int(box[3] * box[4] * box[5]), np.int32)
+    cells = frustum_cells(box)
+    if cells > MAX_FRUSTUM_CELLS:
+        raise ValueError(f"box: {cells} frustum cells, expected at most {MAX_FRUSTUM_CELLS} (voxelize the points "
+                         f"instead, as extract_planes does)")
+    cellcount = ws.get("vx_cellmap", cells, np.int32)
     runs = ws.get("bp_runs", cap + 1, np.int32)
     m, n_runs = kv.key_image(depth, float(intrinsics.fx), float(intrinsics.fy), float(intrinsics.cx),
                              float(intrinsics.cy), int(pixel_stride), float(min_depth_m), float(max_depth_m),

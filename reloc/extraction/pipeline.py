@@ -16,14 +16,14 @@ from reloc.extraction.fit import check_points
 from reloc.extraction.merge import MergedPlanes, merge_voxel_planes, refine_merged_planes
 from reloc.extraction.params import ExtractionParams
 from reloc.extraction.voxel_planes import VoxelPlanes, fit_voxel_planes, refine_voxel_planes
-from reloc.extraction.voxelize import VoxelGrid, frustum_box, voxelize, voxelize_key_image
+from reloc.extraction.voxelize import (
+    MAX_FRUSTUM_CELLS, VoxelGrid, frustum_box, frustum_cells, voxelize, voxelize_key_image,
+)
 from reloc.planeset import PlaneSet
 
 __all__ = ["ExtractionResult", "PlaneExtractor", "extract_planes", "extract_planes_from_points", "STAGES"]
 
 STAGES = ("backproject", "voxelize", "fit", "weight", "merge", "refine", "finalize")
-# Largest dense key table of a frame's viewing frustum (int32 cells, 256 MB); beyond it the occupied cells are hashed.
-MAX_FRUSTUM_CELLS = 1 << 26
 
 
 @dataclass(frozen=True)
@@ -52,7 +52,7 @@ class PlaneExtractor:
             return frame.gravity_cam, 0.0
         fallback = self.params.gravity_fallback
         if fallback == "camera_y":
-            return gravity_from_camera_y(), self.params.camera_tilt_tolerance_rad
+            return gravity_from_camera_y(frame.intrinsics), self.params.camera_tilt_tolerance_rad
         if fallback == "mounting":
             return np.array(self.params.mounting_gravity_cam), 0.0
         return None, 0.0
@@ -72,7 +72,7 @@ class PlaneExtractor:
         if p.flying_pixel_sigmas > 0:
             depth = drop_flying_pixels(depth, noise_model=p.noise_model, noise_coeff=p.noise_coeff,
                                        k_sigmas=p.flying_pixel_sigmas, workspace=self.workspace)
-        if int(np.prod(self._box[3:])) > MAX_FRUSTUM_CELLS:
+        if frustum_cells(self._box) > MAX_FRUSTUM_CELLS:
             # Depth limits far beyond the voxel size: the frustum's dense key table would not fit in memory, so
             # the points are voxelized on their own (a hash of the occupied cells when their box is large).
             pts, pix = depth_to_points(depth, frame.intrinsics, min_depth_m=p.min_depth_m,

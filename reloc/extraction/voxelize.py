@@ -9,7 +9,11 @@ import numpy as np
 from reloc.extraction import _kernels_voxel as kv
 from reloc.extraction._workspace import Workspace, fresh
 
-__all__ = ["VoxelGrid", "voxelize", "voxelize_keyed", "voxelize_key_image", "frustum_box"]
+__all__ = ["VoxelGrid", "voxelize", "voxelize_keyed", "voxelize_key_image", "frustum_box", "frustum_cells",
+           "MAX_FRUSTUM_CELLS"]
+
+# Largest dense key table of a frame's viewing frustum (int32 cells, 256 MB); beyond it the occupied cells are hashed.
+MAX_FRUSTUM_CELLS = 1 << 26
 
 # Largest dense key box, in cells, relative to the number of points (beyond it the hash table is used).
 DENSE_CELLS_PER_POINT = 4
@@ -82,6 +86,12 @@ def frustum_box(intrinsics, *, min_depth_m: float, max_depth_m: float, voxel_siz
     lo = np.floor(np.array([xs.min(), ys.min(), zs.min()]) / voxel_size_m).astype(np.int64) - 1
     hi = np.floor(np.array([xs.max(), ys.max(), zs.max()]) / voxel_size_m).astype(np.int64) + 1
     return np.concatenate([lo, hi - lo + 1]).astype(np.int64)
+
+
+def frustum_cells(box: np.ndarray) -> int:
+    """Cells of a key box ``[x0, y0, z0, nx, ny, nz]``, in Python integers (the int64 product wraps round for a
+    frustum thousands of kilometres deep)."""
+    return int(box[3]) * int(box[4]) * int(box[5])
 
 
 def _grid(ws, m, nv, box, dense, cellmap, tkeys, tvals, voxel_size_m, source_is_pixel=False) -> VoxelGrid:
