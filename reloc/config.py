@@ -106,7 +106,8 @@ class ExtractionConfig(_Section):
         5.0, gt=0, le=90, description="Planarity: angular standard deviation of the voxel normal below this."
     )
     min_inlier_fraction: float = Field(
-        0.7, gt=0, le=1, description="Planarity after the robust refit: this share of the voxel's points are inliers."
+        0.7, gt=0, le=1, description="Planarity after the robust refit: the points' Tukey weights sum to at least this "
+        "share of the voxel's points (a weighted inlier share: a clean voxel of Gaussian noise scores about 0.8)."
     )
     voxel_fit_max_points: int = Field(
         256, ge=3, description="Voxels with more points are refit from an even subsample (weights scaled up)."

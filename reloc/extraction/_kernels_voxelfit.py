@@ -155,7 +155,8 @@ def voxel_weighted_refit(sorted_pts, point_bits, voxel_start, nv, counts, sums, 
     Which voxels: without the robust weight, the planar ones of :func:`voxel_pca_planes`. With it, every voxel
     with enough points whose PCA spectrum is not a blob (``l0 < l1 / 2``), and the planarity test is made again on
     the robust fit: Tukey-weighted RMS distance, the noise-corrected eigenvalue ratio and the normal's standard
-    deviation of the weighted covariance, and at least ``min_inlier_fraction`` of the points inside the kernel.
+    deviation of the weighted covariance, and Tukey weights summing to at least ``min_inlier_fraction`` of the
+    points (about 0.81 of them for a clean plane with Gaussian noise).
     So a voxel that holds a wall and 2 % of another surface (a corner) is a plane of the wall, not rejected.
 
     A voxel with more than ``max_points`` points is refit from about 1 in k of them (chosen by a hash of their

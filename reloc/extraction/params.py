@@ -59,7 +59,9 @@ class ExtractionParams:
       ``irls_kernel_sigmas`` in units of the (robustly rescaled) per-point sigma. Voxels with more than
       ``voxel_fit_max_points`` points are refit from an even subsample (their plane only steers the merging; the
       merged planes are refined from all points). With the robust weight the planarity test is made again on
-      the refit's inliers, which must be at least ``min_inlier_fraction`` of the voxel's points.
+      the refit's inliers, whose Tukey weights must sum to at least ``min_inlier_fraction`` of the voxel's points
+      (a weighted share of inliers: a voxel of a clean plane with Gaussian noise scores about 0.81, so a value above
+      0.8 refuses planar voxels).
     Single point sets (:func:`fit_plane`): ``ransac_hypotheses`` three-point hypotheses scored by a truncated
     sigma-normalised cost give the robust start of the IRLS (0 = start from the noise-weighted PCA); ``seed`` makes
     it repeatable.
@@ -68,10 +70,11 @@ class ExtractionParams:
     whose centroid lies within ``max(grow_max_offset_m, grow_offset_sigmas * sigma(z))`` of it and whose
     points lie on it within the planarity thickness (a 2 cm floor: with 4 cm a voxel holding a wall and a door 6 cm
     behind it joined at 3 m and carried the growing plane onto the door). Under-grown fragments merge when their
-    normals are within ``undergrown_max_angle_rad``, the centroid-to-centroid vector is within
-    ``undergrown_max_depth_angle_rad`` of perpendicular to both normals (or the centroids lie within
-    ``undergrown_max_offset_m`` of the other plane), and the centroids are within ``undergrown_radius_scale`` times
-    the larger radius. Layers (frames only, with merging on): two planes whose normals are within
+    normals are within ``undergrown_max_angle_rad``, the other's centroid lies off the larger fragment's plane by
+    at most the depth angle (``undergrown_max_depth_angle_rad`` off perpendicular to its normal, over the
+    centroid-to-centroid distance) and at most ``undergrown_max_offset_m`` (both tests; each at least
+    ``grow_offset_sigmas`` depth sigmas), and the centroids are within ``undergrown_radius_scale`` times the larger
+    radius. Layers (frames only, with merging on): two planes whose normals are within
     ``undergrown_max_angle_rad``, the smaller one's centroid within ``max_thickness_sigmas`` depth sigmas of the
     larger plane, and which share at least ``layer_min_shared`` of the smaller one's 2x2 pixel blocks are one
     surface seen through the same rays (stereo's disparity steps cut a far wall into such layers): they become one

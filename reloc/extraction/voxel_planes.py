@@ -105,11 +105,13 @@ def refine_voxel_planes(
 
     Weights: Eq. 2 position weight (``adaptive_weights``; off = the paper's VR-NE) x ``1 / sigma^2`` of the noise
     law (``noise_weights``; ``noise_direction`` "ray" or "normal") x Tukey's biweight on the residual over sigma
-    (``irls_iterations`` passes, 0 = off). ``noise_direction="ray"`` solves each plane in the ray form (unbiased
-    for depth noise along the viewing rays), "normal" by weighted total least squares. Also fills the weighted
+    (``irls_iterations`` passes, 0 = off). ``noise_direction`` ("ray" or "normal") sets each point's sigma and
+    weight; the plane itself is solved by weighted total least squares either way (the voxel faces cut the noisy
+    surface along the depth axis, which biases the ray-form regression more). Also fills the weighted
     moments, ``n_eff`` and ``radius``. Voxels with more than ``voxel_fit_max_points`` points are refit from an even
     subsample of them (weights scaled up to stand for all). With the robust weight the planarity test is made
-    again on the inliers (same thresholds as :func:`fit_voxel_planes`, plus ``min_inlier_fraction``), so voxels
+    again on the inliers (same thresholds as :func:`fit_voxel_planes`, plus ``min_inlier_fraction`` of Tukey
+    weight), so voxels
     with a little of another surface count as planar.
     """
     if noise_direction not in ("ray", "normal"):
