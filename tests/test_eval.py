@@ -432,3 +432,22 @@ def test_the_suites_map_tour_is_named_and_checked():
     assert option.default == SUITE_MAP_TOUR and tuple(option.type.choices) == TOURS
     with pytest.raises(ValueError, match="map_tour: expected one of random, rooms, got 'everywhere'"):
         EvalSpec(map_tour="everywhere")
+
+
+def test_look_at_straight_down_is_a_rotation_that_sees_the_floor():
+    """A camera looking down along the world's up (the floor from above): the cross product with up is zero, and
+    ``look_at`` returned NaN, so ``view_planes`` refused the gravity. Its x is now a world axis square to the view."""
+    from reloc.evaluation.synthetic import furnished_room, look_at, view_planes
+
+    for target in ((3.0, 2.5, 0.0), (3.0, 2.5, 4.0)):
+        T = look_at((3.0, 2.5, 2.0), target)
+        R = T[:3, :3]
+        assert np.allclose(R.T @ R, np.eye(3), atol=1e-12) and np.isclose(np.linalg.det(R), 1.0)
+        np.testing.assert_allclose(R[:, 2], np.sign(target[2] - 2.0) * np.array([0.0, 0.0, 1.0]), atol=1e-12)
+    down = view_planes(furnished_room("living"), look_at((3.0, 2.5, 2.0), (3.0, 2.5, 0.0)))
+    np.testing.assert_allclose(down.gravity, [0.0, 0.0, 1.0], atol=1e-12)  # gravity along the view
+    floor = int(np.argmax(down.areas))
+    np.testing.assert_allclose(down.normals[floor], [0.0, 0.0, -1.0], atol=1e-9)  # the floor faces the camera
+    np.testing.assert_allclose(down.offsets[floor], 2.0, atol=1e-9)
+    with pytest.raises(ValueError, match="eye and target are the same point"):
+        look_at((1.0, 2.0, 3.0), (1.0, 2.0, 3.0))

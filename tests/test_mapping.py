@@ -18,6 +18,7 @@ from reloc.mapping import (
     MapFileError,
     MappingParams,
     PlaneMap,
+    SubmapBuilder,
     build_map,
     build_submap,
     grow_submap,
@@ -118,6 +119,30 @@ def test_submap_window_is_in_the_latest_camera_frame():
     np.testing.assert_array_equal(single.viewpoints, np.zeros((1, 3)))
     with pytest.raises(ValueError, match="T_odom_cams"):
         build_submap(sets, Ts[:2])
+
+
+def test_a_submap_builder_restarts_after_a_frame_without_odometry():
+    """A frame without odometry cannot be placed against the frames before it, nor the frame after it against it:
+    the window restarts on both (the first was kept at the identity, and the next frame's odometry pose was taken
+    relative to it, as if the first camera had stood at the origin of odometry). A window of 0 frames is refused,
+    not taken for the default."""
+    rects = furnished_room("living")
+    Ts = [look_at((1.0 + 0.1 * k, 1.0 + 0.05 * k, 1.4), (4.0, 3.5 - 0.05 * k, 1.0)) for k in range(3)]
+    sets = [view_planes(rects, T) for T in Ts]
+    sb = SubmapBuilder(MappingParams(), window_frames=3)
+    sb.push(sets[0], None)
+    assert len(sb) == 1 and np.array_equal(sb.submap().normals, build_submap(sets[:1]).normals)
+    sb.push(sets[1], Ts[1])
+    assert len(sb) == 1
+    alone = build_submap(sets[1:2])
+    sub = sb.submap()
+    assert np.array_equal(sub.normals, alone.normals) and np.array_equal(sub.offsets, alone.offsets)
+    np.testing.assert_array_equal(sub.viewpoints, np.zeros((1, 3)))
+    sb.push(sets[2], Ts[2])  # odometry on both: the window grows again
+    assert len(sb) == 2
+    np.testing.assert_allclose(sb.submap().viewpoints, build_submap(sets[1:], Ts[1:]).viewpoints, atol=1e-12)
+    with pytest.raises(ValueError, match="window_frames: expected an integer >= 1, got 0"):
+        SubmapBuilder(MappingParams(), window_frames=0)
 
 
 def test_odometry_check_leaves_out_a_frame_whose_odometry_is_off():

@@ -106,11 +106,18 @@ def furnished_room(kind: str = "living", origin=(0.0, 0.0)) -> list[Rect]:
 
 
 def look_at(eye, target, up=(0.0, 0.0, 1.0)) -> np.ndarray:
-    """``T_world_cam`` of a camera (optical frame: x right, y down, z forward) at ``eye`` looking at ``target``."""
+    """``T_world_cam`` of a camera (optical frame: x right, y down, z forward) at ``eye`` looking at ``target``,
+    its image's up toward ``up``; looking straight along ``up`` (down at the floor, say), its x is the world axis
+    least aligned with the view, made square to it."""
     eye, target, up = (np.asarray(v, dtype=np.float64) for v in (eye, target, up))
     z = target - eye
+    if not np.linalg.norm(z) > 0:
+        raise ValueError(f"look_at: eye and target are the same point, {eye.tolist()}")
     z /= np.linalg.norm(z)
     x = np.cross(z, up)
+    if np.linalg.norm(x) < 1e-9 * max(1.0, float(np.linalg.norm(up))):
+        axis = np.eye(3)[int(np.argmin(np.abs(z)))]
+        x = axis - z * float(z @ axis)
     x /= np.linalg.norm(x)
     y = np.cross(z, x)
     return transform_from_rotation_translation(np.stack([x, y, z], axis=1), eye)

@@ -508,20 +508,22 @@ class SubmapBuilder:
 
     def __init__(self, params: MappingParams | None = None, window_frames: int | None = None):
         self.params = params or MappingParams()
-        k = window_frames or self.params.submap_window_frames
-        if k < 1:
-            raise ValueError(f"window_frames: expected >= 1, got {k}")
+        k = self.params.submap_window_frames if window_frames is None else window_frames
+        if not isinstance(k, (int, np.integer)) or k < 1:
+            raise ValueError(f"window_frames: expected an integer >= 1, got {k!r}")
         self._planes: deque = deque(maxlen=k)
         self._poses: deque = deque(maxlen=k)
+        self._unposed = False  # the newest frame came without odometry
 
     def push(self, planes_cam: PlaneSet, T_odom_cam: np.ndarray | None) -> None:
-        """Add a frame; without odometry the window restarts (relative poses are unknown)."""
-        if T_odom_cam is None:
+        """Add a frame; a frame without odometry, and the frame after it, restart the window (their poses relative
+        to the frames before are unknown)."""
+        if T_odom_cam is None or self._unposed:
             self._planes.clear()
             self._poses.clear()
-            T_odom_cam = np.eye(4)
+        self._unposed = T_odom_cam is None
         self._planes.append(planes_cam)
-        self._poses.append(np.asarray(T_odom_cam, dtype=np.float64))
+        self._poses.append(np.eye(4) if T_odom_cam is None else np.asarray(T_odom_cam, dtype=np.float64))
 
     def __len__(self) -> int:
         return len(self._planes)
