@@ -485,6 +485,11 @@ def test_confirm_holds_a_true_pose_and_refines_a_nearby_one(living_relocalizer):
     far = living_relocalizer.confirm(sub, transform_from_rotation_translation(np.eye(3), [2.0, 0.0, 0.0]) @ T)
     assert not far.relocalized and far.T_map_cam is None and far.reason
     assert "total" in res.timings_ms and res.ambiguity_ratio == math.inf  # no rival: no runner-up
+    # Its stages are timed as locate's are (prepare, verify and decide read 0 while decide's parts did not).
+    ms = res.timings_ms
+    assert min(ms["prepare"], ms["verify"], ms["decide"], ms["refine"]) > 0.0
+    assert ms["decide"] >= ms["decide.weights"] + ms["decide.density"] + ms["decide.tighten"]
+    assert ms["total"] >= ms["prepare"] + ms["verify"] + ms["decide"] + ms["refine"]
     with pytest.raises(ValueError, match=r"T_map_cam: expected a rotation block with R R\^T = I"):
         living_relocalizer.confirm(sub, np.diag([2.0, 1.0, 1.0, 1.0]))
     with pytest.raises(ValueError, match=r"T_map_cam: expected a 4x4 rigid transform, got shape \(3, 3\)"):
@@ -877,21 +882,28 @@ def test_a_camera_path_through_a_map_wall_is_blocked_but_not_one_through_a_doorw
                Rect((4.725, 0.0, 1.35), (0, 1, 0), (1, 0, 0), 1.275, 1.35)]
     T = look_at((3.0, 1.5, 1.0), (3.0, 3.0, 1.0))
 
-    def blocked(wall, x0, y0, x1, y1) -> bool:
-        reloc = Relocalizer(scene_planes(corridor + wall), MatchingParams(path_test=True))
+    def blocked(wall, x0, y0, x1, y1, T_frame_map=np.eye(4)) -> bool:
+        reloc = Relocalizer(scene_planes(corridor + wall).transformed(T_frame_map, "map"),
+                            MatchingParams(path_test=True))
         sub = view_planes(corridor + wall, T)
         steps = np.linspace(0.0, 1.0, 21)[:, None]
         path = np.array([x0, y0, 1.0]) + steps * np.array([x1 - x0, y1 - y0, 0.0])
         sub = replace(sub, viewpoints=(path - T[:3, 3]) @ T[:3, :3])  # in the camera frame
         used, _, _, _ = reloc.prepare(sub)
-        return bool(reloc.path_blocked(used, T[None, :3, :3], T[None, :3, 3])[0])
+        pose = T_frame_map @ T
+        return bool(reloc.path_blocked(used, pose[None, :3, :3], pose[None, :3, 3])[0])
 
-    assert blocked(solid, 3.0, 1.0, 3.0, -1.0)
-    assert not blocked(doorway, 3.0, 1.0, 3.0, -1.0)
-    assert not blocked(doorway, 2.85, 1.0, 2.85, -1.0)
-    assert not blocked(solid, 1.0, 1.0, 5.0, 1.0)
-    assert not blocked(doorway, 1.0, 1.0, 1.0, -0.04)  # ends within the 5 cm margin
-    assert blocked(doorway, 1.0, 1.0, 1.0, -1.0)
+    # The walls are the planes square to the map's gravity, wherever it points (they were those square to its z,
+    # and in a map with gravity along +y, the first camera's frame, say, the path through the wall went free).
+    y_down = transform_from_rotation_translation(rotation_from_axis_angle(np.array([np.pi / 2, 0.0, 0.0])),
+                                                 np.array([0.5, -2.0, 1.0]))
+    for frame in (np.eye(4), y_down):
+        assert blocked(solid, 3.0, 1.0, 3.0, -1.0, frame)
+        assert not blocked(doorway, 3.0, 1.0, 3.0, -1.0, frame)
+        assert not blocked(doorway, 2.85, 1.0, 2.85, -1.0, frame)
+        assert not blocked(solid, 1.0, 1.0, 5.0, 1.0, frame)
+        assert not blocked(doorway, 1.0, 1.0, 1.0, -0.04, frame)  # ends within the 5 cm margin
+        assert blocked(doorway, 1.0, 1.0, 1.0, -1.0, frame)
     # Without a path (a single-frame submap) nothing is blocked.
     reloc = Relocalizer(scene_planes(corridor + solid), MatchingParams(path_test=True))
     used, _, _, _ = reloc.prepare(replace(view_planes(corridor + solid, T), viewpoints=np.zeros((1, 3))))
@@ -1328,3 +1340,62 @@ def test_a_noisy_sensors_rivals_get_less_credit_for_planes_the_map_knows_nothing
     assert got["stereo"].runner_up_score < got["kinect"].runner_up_score
     with pytest.raises(ValueError, match="noisy_rival_unknown_weight"):
         MatchingParams(noisy_rival_unknown_weight=1.5)
+
+
+def test_a_map_without_gravity_or_without_samples_is_still_a_map():
+    """A map with no gravity has no horizontal planes to anchor the ground constraint: a submap with gravity got
+    no candidate at all (the submap side demanded a floor pair), where the same submap without gravity was
+    relocalized. A map whose planes carry no samples, or no planes, failed to index (IndexError); it is rejected
+    with its reason. A matcher parameter the stages divide by is refused at zero, by name."""
+    from dataclasses import replace
+
+    rects = furnished_room("living")
+    mp = scene_planes(rects)
+    T = look_at((5, 4, 1.5), (1, 1, 0.5))
+    sub = view_planes(rects, T, point_noise_m=0.005, normal_noise_deg=0.3, rng=np.random.default_rng(6))
+    for m in (mp, replace(mp, gravity=None)):
+        for s in (sub, replace(sub, gravity=None)):
+            res = Relocalizer(m, MatchingParams()).locate(s)
+            assert res.relocalized, res.reason
+            t_err, r_err = pose_error(res.T_map_cam, T)
+            assert t_err < 0.03 and r_err < 0.3
+    bare = replace(mp, sample_points=np.zeros((0, 3), np.float32), sample_ptr=np.zeros(len(mp) + 1, np.int64))
+    empty = mp.subset(np.zeros(0, np.int64))
+    for m, why in ((bare, "no hypothesis passed verification"), (empty, "0 map planes; at least 5 needed")):
+        res = Relocalizer(m, MatchingParams()).locate(sub)
+        assert not res.relocalized and why in res.reason
+    for name in ("kde_sigma_translation_m", "kde_sigma_rotation_rad", "extent_cell_m", "evidence_area_m2"):
+        with pytest.raises(ValueError, match=f"{name}: expected > 0 \\(it divides\\), got 0.0"):
+            MatchingParams(**{name: 0.0})
+
+
+def test_coplanar_map_fragments_are_one_extent_wherever_the_maps_origin_is():
+    """A wall the map holds as two fragments 1.5 deg apart (never joined) is one extent for the overlap test. The
+    fragments were judged coplanar by their offsets, which differ by (n1 - n2) . t when the map's origin moves by t:
+    with the origin 30 m along the wall the union broke, the wall went unmatched and the view was rejected. They
+    are judged by their planes' distance where the sample lies."""
+    from reloc.evaluation.synthetic import Rect, box, room
+
+    rects = room(6.0, 5.0, 2.6, origin=(-3.0, 0.0))
+    back = next(r for r in rects if r.normal[1] < -0.5)  # the wall y = 5, facing -y
+    furniture = box((0.8, 3.6), (1.0, 0.6, 0.8), yaw_rad=0.4) + box((-1.6, 3.2), (0.6, 0.8, 1.1), yaw_rad=-0.3)
+    others = [r for r in rects if r is not back] + furniture
+    Rz = rotation_from_axis_angle(np.array([0.0, 0.0, math.radians(1.5)]))
+    fragments = [Rect((-1.5, 5.0, 1.3), (0, -1, 0), (1, 0, 0), 1.5, 1.3),
+                 Rect((1.5, 5.0, 1.3), tuple(Rz @ [0, -1, 0]), tuple(Rz @ [1, 0, 0]), 1.5, 1.3)]
+    T = look_at((0.0, 1.2, 1.3), (0.0, 5.0, 1.2))
+    sub = view_planes(rects + furniture, T)  # the camera sees the flat wall as one plane
+    wall = int(np.argmax(sub.normals @ (T[:3, :3].T @ np.array([0.0, -1.0, 0.0]))))
+    for shift in (0.0, 30.0, -200.0):
+        T_moved_map = transform_from_rotation_translation(np.eye(3), np.array([shift, 0.0, 0.0]))
+        reloc = Relocalizer(scene_planes(others + fragments).transformed(T_moved_map, "map"), MatchingParams())
+        pose = T_moved_map @ T
+        used, order, vs_ptr, vs_pts = reloc.prepare(sub)
+        v = reloc.verify(used, vs_ptr, vs_pts, pose[None, :3, :3].copy(), pose[None, :3, 3].copy(),
+                         np.array([[0, 1, 2, 0, 0, 0]], np.int32), require_triplet=False)
+        j = int(np.flatnonzero(order == wall)[0])
+        assert v.match[0, j] >= 0 and v.over[0, j] == pytest.approx(1.0), shift
+        res = reloc.locate(sub)
+        assert res.relocalized, (shift, res.reason)
+        t_err, r_err = pose_error(res.T_map_cam, pose)
+        assert t_err < 0.02 and r_err < 0.5, (shift, t_err, r_err)

@@ -929,17 +929,21 @@ def verify_transforms(R, t, cand, plane_order, sub_normals, sub_offsets, sub_cen
                     if pos < 0:
                         continue
                     hit = False
+                    # Coplanar: normals within the match angle, planes within max_offset of each other here (their
+                    # offsets alone would differ with the map's origin wherever the normals differ at all).
+                    off_it = (map_normals[it, 0] * px + map_normals[it, 1] * py + map_normals[it, 2] * pz
+                              + map_offsets[it])
                     for e in range(hash_ptr[pos], hash_ptr[pos + 1]):
                         i2 = hash_ids[e]
                         if (map_normals[i2, 0] * map_normals[it, 0] + map_normals[i2, 1] * map_normals[it, 1]
                                 + map_normals[i2, 2] * map_normals[it, 2] >= cos_match
-                                and abs(map_offsets[i2] - map_offsets[it]) <= max_offset):
+                                and abs(map_normals[i2, 0] * px + map_normals[i2, 1] * py + map_normals[i2, 2] * pz
+                                        + map_offsets[i2] - off_it) <= max_offset):
                             hit = True
                             break
                     if hit:
                         u_over += 1
-                        if abs(map_normals[it, 0] * px + map_normals[it, 1] * py + map_normals[it, 2] * pz
-                               + map_offsets[it]) <= inlier_m:
+                        if abs(off_it) <= inlier_m:
                             u_proj += 1
                 ro = u_over * inv_m
                 rp = u_proj * inv_m
@@ -1224,16 +1228,17 @@ def mark_hidden(R, t, state, sub_normals, vs_ptr, vs_points, views, map_normals,
 
 @njit
 def _walks_through(ax, ay, az, bx, by, bz, map_normals, map_offsets, map_centroids, map_radii, bases, surf_ptr,
-                   surf_keys, cell, margin, reach):
-    """Whether the step from ``a`` to ``b`` goes through a wall of the map: a vertical map plane (z up) with one end
-    more than ``margin`` in front of it and the other more than ``margin`` behind, crossed where the plane has
-    surface, and surface on along its horizontal every ``cell`` up to ``reach`` on both sides. A doorway the map
-    saw narrowed by its edges' samples still leaves a gap within ``reach`` of any step through it."""
+                   surf_keys, cell, margin, reach, up):
+    """Whether the step from ``a`` to ``b`` goes through a wall of the map: a map plane of normal at least 60 degrees
+    from ``up`` (the map's unit up), with one end more than ``margin`` in front of it and the other more than
+    ``margin`` behind, crossed where the plane has surface, and surface on along its horizontal every ``cell`` up to
+    ``reach`` on both sides. A doorway the map saw narrowed by its edges' samples still leaves a gap within
+    ``reach`` of any step through it."""
     for i in range(map_normals.shape[0]):
         mx = map_normals[i, 0]
         my = map_normals[i, 1]
         mz = map_normals[i, 2]
-        if abs(mz) > 0.5:
+        if abs(mx * up[0] + my * up[1] + mz * up[2]) > 0.5:
             continue
         sa = mx * ax + my * ay + mz * az + map_offsets[i]
         sb = mx * bx + my * by + mz * bz + map_offsets[i]
@@ -1242,18 +1247,20 @@ def _walks_through(ax, ay, az, bx, by, bz, map_normals, map_offsets, map_centroi
         inside, x, y, z = _crossing(i, ax, ay, az, bx, by, bz, sa, sb, map_centroids, map_radii)
         if not inside:
             continue
-        # The plane's horizontal direction: n x z.
-        hx = my
-        hy = -mx
-        hn = math.sqrt(hx * hx + hy * hy)
+        # The plane's horizontal direction: n x up.
+        hx = my * up[2] - mz * up[1]
+        hy = mz * up[0] - mx * up[2]
+        hz = mx * up[1] - my * up[0]
+        hn = math.sqrt(hx * hx + hy * hy + hz * hz)
         hx /= hn
         hy /= hn
+        hz /= hn
         solid = _on_surface(i, x, y, z, bases, surf_ptr, surf_keys, cell)
         k = 1
         while solid and k * cell <= reach + 1e-9:
             e = k * cell
-            solid = (_on_surface(i, x + e * hx, y + e * hy, z, bases, surf_ptr, surf_keys, cell)
-                     and _on_surface(i, x - e * hx, y - e * hy, z, bases, surf_ptr, surf_keys, cell))
+            solid = (_on_surface(i, x + e * hx, y + e * hy, z + e * hz, bases, surf_ptr, surf_keys, cell)
+                     and _on_surface(i, x - e * hx, y - e * hy, z - e * hz, bases, surf_ptr, surf_keys, cell))
             k += 1
         if solid:
             return True
@@ -1262,9 +1269,10 @@ def _walks_through(ax, ay, az, bx, by, bz, map_normals, map_offsets, map_centroi
 
 @njit
 def path_blocked(R, t, views, min_step, map_normals, map_offsets, map_centroids, map_radii, bases, surf_ptr,
-                 surf_keys, cell, margin, reach, out):
+                 surf_keys, cell, margin, reach, up, out):
     """Whether the camera path of a submap, under each pose ``(R[h], t[h])``, walks through a wall of the map
-    (:func:`_walks_through`): ``out[h]``. The path is ``views`` (V, 3), the submap's camera positions in order (its
+    (:func:`_walks_through`; walls are planes whose normals are at least 60 degrees from ``up``, the map's unit
+    up): ``out[h]``. The path is ``views`` (V, 3), the submap's camera positions in order (its
     frame), taken in steps of at least ``min_step`` (a step of a few centimetres cannot be both in front of a wall
     and behind it); each step is judged, and so is each pair of steps (a point of the path within ``margin`` of a
     wall is on neither side of it)."""
@@ -1292,7 +1300,7 @@ def path_blocked(R, t, views, min_step, map_normals, map_offsets, map_centroids,
             for back in range(2, 4):
                 if n >= back and _walks_through(px[n - back], py[n - back], pz[n - back], x, y, z, map_normals,
                                                 map_offsets, map_centroids, map_radii, bases, surf_ptr, surf_keys,
-                                                cell, margin, reach):
+                                                cell, margin, reach, up):
                     out[h] = True
                     break
             if out[h]:
@@ -1519,7 +1527,7 @@ def _warmup() -> None:
     mark_hidden(Rs, ts, hid, normals, vs_ptr, pts, np.zeros((1, 3)), normals, offsets, centroids, radii, bases,
                 sptr3, skeys, 0.1, 0.04, 0.3, 0.5, True, np.empty((1, S), np.float32))
     path_blocked(Rs, ts, np.array([[0.0, 0.0, 2.0], [0.0, 0.0, -2.0]]), 0.3, normals, offsets, centroids, radii,
-                 bases, sptr3, skeys, 0.1, 0.05, 0.5, np.empty(1, np.bool_))
+                 bases, sptr3, skeys, 0.1, 0.05, 0.5, np.array([0.0, 0.0, 1.0]), np.empty(1, np.bool_))
     dens = np.empty(1)
     kde_density(Rs, ts, np.ones(1), np.ones(6), dens)
     grp = np.empty(1, np.int32)

@@ -159,7 +159,8 @@ def _surface_cells(planes: PlaneSet, cell_m: float) -> tuple[np.ndarray, np.ndar
     # array puts the keys in order per plane (a lexsort of the two took four times as long, np.unique six times:
     # 9.5 million keys at 2,000 planes).
     packed = np.sort(np.repeat(owner, 9) << 42 | keys)
-    packed = packed[np.r_[True, packed[1:] != packed[:-1]]]
+    if len(packed):  # a map without samples has no surface cells
+        packed = packed[np.r_[True, packed[1:] != packed[:-1]]]
     keys, ids = np.ascontiguousarray(packed & ((1 << 42) - 1)), packed >> 42
     ptr = np.searchsorted(ids, np.arange(N + 1)).astype(np.int64)
     return bases, ptr, keys

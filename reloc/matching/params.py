@@ -13,6 +13,9 @@ from reloc._params import with_changes
 
 __all__ = ["MatchingParams", "ABLATIONS", "ablation_params", "scaled_to_sensor", "sensor_sigma_m"]
 
+# Fields the stages divide by: zero is refused by name (a ZeroDivisionError deep in a query otherwise).
+_DIVISORS = ("kde_sigma_translation_m", "kde_sigma_rotation_rad", "extent_cell_m", "evidence_area_m2")
+
 
 @dataclass(frozen=True)
 class MatchingParams:
@@ -115,6 +118,8 @@ class MatchingParams:
                 problems.append(f"{f.name}: expected a finite number, got {v!r}")
             elif float(v) < 0:
                 problems.append(f"{f.name}: expected >= 0, got {v!r}")
+            elif f.name in _DIVISORS and float(v) == 0:
+                problems.append(f"{f.name}: expected > 0 (it divides), got {v!r}")
         if self.initial_planes < 3:
             problems.append(f"initial_planes: expected >= 3, got {self.initial_planes}")
         if self.max_submap_planes < 3:

@@ -66,7 +66,8 @@ class RelocResult:
     - ``score``: normalized density of the pose (Eq. 14, 0..1); ``ambiguity_ratio``: score over the best score at a
       different pose (inf when there is none).
     - ``matched``: (M, 2) int64 rows ``(submap plane, map plane)`` (submap indices of the input plane set).
-    - ``explained_fraction``: matched submap area over the submap area used.
+    - ``explained_fraction``: the share of the submap the matched planes explain, each plane weighing the square
+      root of its area (planes under ``min_counted_area_m2`` count only when matched).
     - ``counts``: submap planes, planes used, rounds, submap triplets, map triplets looked at (``generated``),
       candidates after selection, degenerate transforms, hypotheses verified, verified hypotheses that passed.
     - ``timings_ms``: per stage (:data:`STAGES`), the parts of ``decide`` (:data:`SUBSTAGES`) and ``total``.
@@ -338,9 +339,11 @@ class Relocalizer:
         views = used.viewpoints
         if views is None or len(views) < 2 or not len(R):
             return out
+        g = self.planes.gravity
+        up = np.array([0.0, 0.0, 1.0]) if g is None else -np.asarray(g, dtype=np.float64)  # z up without gravity
         K.path_blocked(np.ascontiguousarray(R), np.ascontiguousarray(t), np.ascontiguousarray(views),
                        p.path_min_step_m, ix.normals, ix.offsets, ix.centroids, ix.radii, ix.bases, ix.surf_ptr,
-                       ix.surf_keys, SURFACE_CELL_M, p.path_margin_m, p.path_reach_m, out)
+                       ix.surf_keys, SURFACE_CELL_M, p.path_margin_m, p.path_reach_m, up, out)
         return out
 
     def refine(self, used: PlaneSet, match_row: np.ndarray, proj_row: np.ndarray) -> np.ndarray | None:
@@ -621,7 +624,9 @@ class Relocalizer:
         counts["planes_used"] = S
         if trace is not None:
             trace["used"] = used
-        facing = horizontal_facing(used, p.ground_tolerance_rad)
+        # A map without gravity has no horizontal planes to anchor the ground constraint: the submap's go without.
+        facing = (horizontal_facing(used, p.ground_tolerance_rad) if self.planes.gravity is not None
+                  else np.zeros(S, dtype=np.int8))
         distances = sample_distances(vs_ptr, vs_pts)
         sub_ext = K.trimmed_extents(used.normals, used.offsets, used.sample_ptr,
                                     np.ascontiguousarray(used.sample_points, dtype=np.float64),
@@ -825,9 +830,11 @@ class Relocalizer:
             result.timings_ms["total"] = (time.perf_counter() - t_start) * 1e3
             return result
 
+        t0 = time.perf_counter()
         used, order, vs_ptr, vs_pts = self.prepare(submap)
         S = len(used)
         counts["planes_used"] = S
+        timings["prepare"] = (time.perf_counter() - t0) * 1e3
         min_matched = p.min_matched_planes if p.scene_uniqueness else 3
         if S < min_matched or len(self.index) < 3:
             return finish(_rejected(
@@ -836,7 +843,9 @@ class Relocalizer:
         # The verification takes the first three planes of the candidate row first; any three do for a given pose.
         cand = np.array([[0, 1, 2, 0, 0, 0]], dtype=np.int32)
         R, t = np.ascontiguousarray(T0[None, :3, :3]), np.ascontiguousarray(T0[None, :3, 3])
+        t0 = time.perf_counter()
         v = self.verify(used, vs_ptr, vs_pts, R, t, cand, require_triplet=False)
+        timings["verify"] = (time.perf_counter() - t0) * 1e3
         if not v.passed[0]:
             in_free = f", {int(v.free[0])} in known free space" if v.free[0] else ""
             return finish(_rejected(
@@ -845,7 +854,9 @@ class Relocalizer:
             ))
         hyps = _Hypotheses(S)
         hyps.add(R, t, cand, v)
+        t0 = time.perf_counter()
         decision, judged = self._judge(hyps, used, vs_ptr, vs_pts, min_matched, timings)
+        timings["decide"] = (time.perf_counter() - t0) * 1e3
         if not decision.accepted:
             return finish(_rejected(decision.reason, counts, timings))
         return finish(self._conclude(used, order, vs_ptr, vs_pts, judged, judged is not hyps, decision, min_matched,
