@@ -194,8 +194,10 @@ def axis_angle_from_rotation(R: np.ndarray) -> np.ndarray:
     if theta < 1e-6:
         return 0.5 * v
     if math.pi - theta < 1e-4:
-        # Near pi the antisymmetric part vanishes: take the axis from the symmetric part.
-        B = 0.5 * (R + np.eye(3))
+        # Near pi the antisymmetric part vanishes: take the axis from the symmetric part, which is
+        # cos(theta) I + (1 - cos(theta)) a a^T exactly (R's own rows alone are off by its antisymmetric part).
+        c = math.cos(theta)
+        B = (0.5 * (R + R.T) - c * np.eye(3)) / (1.0 - c)
         axis = B[np.argmax(np.diag(B))]
         axis = axis / np.linalg.norm(axis)
         if np.dot(axis, v) < 0:

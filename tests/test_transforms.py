@@ -98,6 +98,23 @@ def test_rotation_angle_near_zero_and_pi(deg):
     np.testing.assert_allclose(tf.rotation_from_axis_angle(tf.axis_angle_from_rotation(R)), R, atol=1e-6)
 
 
+@pytest.mark.parametrize("gap", [2e-4, 9e-5, 5e-5, 1e-6, 0.0])
+def test_axis_angle_round_trips_within_1e4_rad_of_pi(gap):
+    """Within 1e-4 rad of pi the axis comes from the symmetric part of R; it was read from a row of (R + I) / 2,
+    whose antisymmetric part (sin(theta) of the axis) put it 6.6e-5 rad off at pi - 9e-5."""
+    axis = np.array([0.3, -0.5, 0.81])
+    axis /= np.linalg.norm(axis)
+    phi = axis * (math.pi - gap)
+    R = tf.rotation_from_axis_angle(phi)
+    back = tf.axis_angle_from_rotation(R)
+    if gap == 0.0:  # at pi, the axis and its opposite are the same rotation
+        back = back if back @ phi > 0 else -back
+    np.testing.assert_allclose(back, phi, atol=1e-10)
+    np.testing.assert_allclose(tf.rotation_from_axis_angle(back), R, atol=1e-12)
+    T = tf.transform_from_rotation_translation(R, np.array([0.4, -1.0, 2.0]))
+    np.testing.assert_allclose(tf.exp_se3(tf.log_se3(T)), T, atol=1e-10)
+
+
 def test_tum_matches_known_quaternion():
     # 90 degrees about z: qz = qw = sqrt(1/2)
     T = tf.transform_from_tum([1, 2, 3, 0, 0, math.sqrt(0.5), math.sqrt(0.5)])
