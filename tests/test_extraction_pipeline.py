@@ -198,6 +198,47 @@ def test_layers_of_a_far_stereo_wall_become_one_plane(noise_seed):
     assert covering(params.with_(layer_min_shared=0.5)) == [(share, ang, off)]
 
 
+def test_layers_merge_with_a_pixel_stride_too():
+    """With ``pixel_stride`` 2 a block of 2x2 image pixels holds one pixel used, so two layers never shared one and
+    the layer merge never fired; blocks are 2 pixels used square now. Office, robot trajectory 1, frame 0, stereo:
+    the wall 4.5 m ahead has a layer of 1,676 pixels 7 cm behind it, turned over 2 deg; merged, the wall is one
+    plane within 0.2 deg and 5 mm, and the other planes are as they were."""
+    sim = pytest.importorskip("sim")
+    from sim.ground_truth import planes_in_camera
+    from sim.scenes import make_scene
+    from sim.trajectories import make_trajectory
+
+    from reloc.evaluation.suite import EvalSpec, extraction_for_sensor
+
+    scene = make_scene("office")
+    pose = make_trajectory("robot", scene, 10, 1)[0:1]
+    f = sim.simulate_frames(scene=scene, trajectory=pose, noise="stereo", camera="oak-d", seed=0)[0]
+    h, w = f.depth_m.shape
+    params = extraction_for_sensor(EvalSpec(noise="stereo", camera="oak-d", width=w, height=h)).with_(pixel_stride=2)
+    normals, offsets = planes_in_camera(scene, f.T_world_cam)
+
+    def surfaces(p):
+        ps = PlaneExtractor(p).extract(f).planes
+        out = []
+        for i in range(len(ps)):
+            ids = f.labels[(ps.labels == i) & (f.labels > 0)]
+            row = scene.index_of(int(np.bincount(ids).argmax()))
+            gt = np.r_[normals[row], offsets[row]]
+            out.append((row, *plane_errors(np.r_[ps.normals[i], ps.offsets[i]], -gt if gt[3] < 0 else gt)))
+        return out
+
+    layered = surfaces(params.with_(layer_min_shared=0.0))
+    rows = [r for r, _, _ in layered]
+    wall = next(r for r in rows if rows.count(r) == 2)  # one surface twice: the wall and its layer
+    assert len(set(rows)) == len(rows) - 1
+    assert max(ang for r, ang, _ in layered if r == wall) > 2.0
+    merged = surfaces(params)
+    assert len(merged) == len(layered) - 1 and len({r for r, _, _ in merged}) == len(merged)
+    (ang, off), = [(a, o) for r, a, o in merged if r == wall]
+    assert ang < 0.2 and off < 0.005, (ang, off)
+    assert [x for x in merged if x[0] != wall] == [x for x in layered if x[0] != wall]  # the others untouched
+
+
 @pytest.mark.parametrize("noise_model, expected", [("stereo", 0.5), ("kinect", 0.0), ("tof", 0.0), ("constant", 0.0)])
 def test_layers_are_merged_by_default_only_for_a_stereo_cameras_noise_law(noise_model, expected):
     assert ExtractionParams(noise_model=noise_model).layer_share == expected

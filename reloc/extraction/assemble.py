@@ -101,7 +101,7 @@ def assemble_plane_set(
         layered = _merge_layers(grid, planes, counts, sums, scatters, covariances, plane_of_voxel, point_plane, table,
                                 m, src_is_pixel, pix, w, h, min_shared=float(layer_min_shared),
                                 max_angle_rad=float(layer_max_angle_rad), offset_sigmas=float(layer_offset_sigmas),
-                                power=power, coeff=float(noise_coeff))
+                                power=power, coeff=float(noise_coeff), pixel_stride=int(pixel_stride))
         if layered is not None:
             planes, table, plane_of_voxel, covariances = layered
     radii = np.zeros(n_all)
@@ -161,11 +161,14 @@ MAX_LAYER_PAIRS = 64
 
 
 def _merge_layers(grid, planes, counts, sums, scatters, covariances, plane_of_voxel, point_plane, table, m,
-                  src_is_pixel, pix, width, height, *, min_shared, max_angle_rad, offset_sigmas, power, coeff):
+                  src_is_pixel, pix, width, height, *, min_shared, max_angle_rad, offset_sigmas, power, coeff,
+                  pixel_stride=1):
     """Merge planes that are layers of one surface: normals within ``max_angle_rad``, the smaller one's centroid
     within ``offset_sigmas`` depth sigmas of the larger plane, and the two seen in at least ``min_shared`` of the
-    smaller one's 2x2 pixel blocks (two surfaces cannot both be seen through the same rays; stereo's disparity
-    steps cut a far wall facing the camera into such layers, 13-15 cm apart at 6 m).
+    smaller one's blocks of 2x2 pixels used (of 2 ``pixel_stride`` pixels square in the image: with a stride, a
+    block of 2x2 image pixels holds one pixel used, and no two planes could share one), as two surfaces cannot
+    both be seen through the same rays; stereo's disparity steps cut a far wall facing the camera into such layers,
+    13-15 cm apart at 6 m.
 
     ``counts``, ``sums`` and ``scatters`` (plain statistics of the supporting points, about the origin) are summed
     into the larger plane in place; the merged plane and its covariance are refit from them (least squares of all
@@ -183,9 +186,10 @@ def _merge_layers(grid, planes, counts, sums, scatters, covariances, plane_of_vo
     bit_of = np.full(len(planes), -1, np.int64)
     bit_of[involved] = np.arange(len(involved))
     pairs = pairs[(bit_of[pairs[:, 0]] >= 0) & (bit_of[pairs[:, 1]] >= 0)]
-    n_bw = (width + LAYER_BLOCK - 1) // LAYER_BLOCK
-    masks = np.zeros(n_bw * ((height + LAYER_BLOCK - 1) // LAYER_BLOCK), np.uint64)
-    kf.layer_blocks(point_plane, table, m, grid.source, src_is_pixel, pix, width, LAYER_BLOCK, n_bw, bit_of, masks)
+    block = LAYER_BLOCK * int(pixel_stride)
+    n_bw = (width + block - 1) // block
+    masks = np.zeros(n_bw * ((height + block - 1) // block), np.uint64)
+    kf.layer_blocks(point_plane, table, m, grid.source, src_is_pixel, pix, width, block, n_bw, bit_of, masks)
     parent = np.arange(len(planes))
 
     def root(a):
