@@ -35,16 +35,19 @@ class Intrinsics:
     def __post_init__(self) -> None:
         for name in ("fx", "fy", "cx", "cy", "depth_scale"):
             v = getattr(self, name)
-            if not isinstance(v, (int, float)) or not np.isfinite(v):
+            if isinstance(v, (bool, np.bool_)) or not isinstance(v, (int, float, np.integer, np.floating)) or \
+                    not np.isfinite(v):
                 raise ValueError(f"Intrinsics.{name}: expected a finite number, got {v!r}")
+            object.__setattr__(self, name, float(v))  # numpy scalars (a float32 calibration) become Python floats
         if abs(self.fx) < 1e-9 or abs(self.fy) < 1e-9:
             raise ValueError(f"Intrinsics: expected non-zero focal lengths, got fx={self.fx}, fy={self.fy}")
         if self.fx < 0:
             raise ValueError(f"Intrinsics.fx: expected > 0, got {self.fx} (only fy may be negative, as in ICL-NUIM)")
         for name in ("width", "height"):
             v = getattr(self, name)
-            if not isinstance(v, (int, np.integer)) or v <= 0:
+            if isinstance(v, (bool, np.bool_)) or not isinstance(v, (int, np.integer)) or v <= 0:
                 raise ValueError(f"Intrinsics.{name}: expected a positive integer, got {v!r}")
+            object.__setattr__(self, name, int(v))
         if self.depth_scale <= 0:
             raise ValueError(f"Intrinsics.depth_scale: expected > 0, got {self.depth_scale}")
 

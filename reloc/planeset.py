@@ -153,7 +153,10 @@ class PlaneSet:
 
     def subset(self, index: np.ndarray) -> "PlaneSet":
         """The planes ``index`` (an integer array or a boolean mask), samples included; labels are dropped."""
-        idx = np.arange(len(self))[np.asarray(index)]
+        index = np.asarray(index)
+        if index.size == 0 and index.dtype != np.bool_:
+            index = index.astype(np.int64)  # [] reads as float: no planes
+        idx = np.arange(len(self))[index]
         pieces = [self.samples_of(int(i)) for i in idx]
         sizes = np.array([len(p) for p in pieces], dtype=np.int64)
         ptr = np.concatenate([[0], np.cumsum(sizes)]).astype(np.int64)

@@ -68,6 +68,9 @@ def test_planeset_subset_and_arrays_round_trip():
     ps = planeset_from_points(groups)
     sub = ps.subset(np.array([2, 0]))
     assert len(sub) == 2
+    for none in ([], np.zeros(0, np.int64), np.zeros(3, bool)):  # [] reads as float: it raised IndexError
+        empty = ps.subset(none)
+        assert len(empty) == 0 and empty.sample_ptr.tolist() == [0] and empty.sample_points.shape == (0, 3)
     np.testing.assert_array_equal(sub.samples_of(0), groups[2].astype(np.float32))
     np.testing.assert_array_equal(sub.samples_of(1), groups[0].astype(np.float32))
     arrays = ps.to_arrays("m_")
@@ -127,6 +130,14 @@ def test_intrinsics_validation_and_scaling():
     with pytest.raises(ValueError, match="missing keys"):
         Intrinsics.from_dict({"fx": 1.0}, "camera.yaml")
     assert Intrinsics.from_dict(K.as_dict()) == K
+    # A calibration read as numpy scalars (float32 from a device, int64 sizes) is taken, as Python numbers; a bool is
+    # not a number here.
+    K32 = Intrinsics(*np.float32([525.0, 525.0, 319.5, 239.5]), np.int64(640), np.int64(480), np.float32(1000.0))
+    assert K32 == Intrinsics(525.0, 525.0, 319.5, 239.5, 640, 480, 1000.0)
+    assert all(type(getattr(K32, f)) is float for f in ("fx", "fy", "cx", "cy", "depth_scale"))
+    assert type(K32.width) is int and hash(K32) == hash(Intrinsics(525.0, 525.0, 319.5, 239.5, 640, 480, 1000.0))
+    with pytest.raises(ValueError, match="Intrinsics.fx: expected a finite number, got True"):
+        Intrinsics(True, 500.0, 1.0, 1.0, 10, 10)
 
 
 def test_depth_frame_validation():
