@@ -110,7 +110,8 @@ class Profiler:
         """Record a component's stage times (ms), e.g. ``ExtractionResult.timings_ms``, under ``prefix``.
 
         A key ``"a.b"`` whose parent ``"a"`` is also given is a part of ``a`` (its time is included in a's): in the
-        trace it is placed inside a's span, after its earlier siblings, instead of after ``a``.
+        trace it is placed inside a's span, after its earlier siblings, instead of after ``a`` (a part of a part
+        likewise, inside its parent's span).
         """
         if not self.enabled or not timings_ms:
             return
@@ -125,13 +126,12 @@ class Profiler:
                 starts[key] = start
                 start += dur
         cursor = dict(starts)  # the next free start inside each stage's span, for its parts
+        # Parts placed by depth (a parent before its parts; siblings in the order given), then all recorded.
+        for key, dur in sorted((kd for kd in durations if kd[0] in nested), key=lambda kd: kd[0].count(".")):
+            starts[key] = cursor[key] = cursor[parent[key]]
+            cursor[parent[key]] += dur
         for key, dur in durations:
-            if key in nested:
-                at = cursor[parent[key]]
-                cursor[parent[key]] = at + dur
-            else:
-                at = starts[key]
-            self.record(f"{prefix}{key}", at, dur, thread)
+            self.record(f"{prefix}{key}", starts[key], dur, thread)
 
     def note_compile(self, seconds: float) -> None:
         """Numba compilation time, reported apart from stage times."""

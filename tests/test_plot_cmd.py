@@ -103,6 +103,56 @@ def test_plot_frame(files, tmp_path, capsys):
     assert f"{files['map']}: the map records no config" in capsys.readouterr().err
 
 
+def test_plot_frame_and_submap_extract_with_the_sequences_noise_law(tmp_path, capsys):
+    """A stereo sequence of ``reloc sim`` stores its noise law; ``reloc plot frame`` (and ``plot map --submap``)
+    extracted with the config as loaded (the Kinect law, no layer merge), so the picture showed other planes than
+    map build and locate use."""
+    from reloc.commands.map_cmd import sequence_config, sequence_plane_source
+    from reloc.config import load_config
+    from drivers.readers import open_sequence
+
+    seq = tmp_path / "stereo"
+    assert main(["sim", "living_room", "--noise", "stereo", "--camera", "oak-d", "--width", "320", "--height", "200",
+                 "--frames", "3", "--out", str(seq)]) == 0
+    cfg = sequence_config(load_config(None), str(seq), quiet=True)
+    assert cfg.extraction.noise_model == "stereo"
+    expected = len(sequence_plane_source(str(seq), "extraction", cfg)(open_sequence(seq)[0]))
+    plain = len(sequence_plane_source(str(seq), "extraction", load_config(None))(open_sequence(seq)[0]))
+    assert plain != expected  # the two laws differ on this frame: the test can tell them apart
+    capsys.readouterr()
+    out = tmp_path / "frame.png"
+    assert main(["plot", "frame", str(seq), "--index", "0", "-o", str(out), "--width", "500", "--height", "200"]) == 0
+    assert f"({expected} planes, extraction)" in capsys.readouterr().out
+
+
+def test_plot_latency_table8_of_a_live_profile(tmp_path):
+    """A live profile's "other" and "total" rows have a total but no percentiles (the loop's threads overlap):
+    ``reloc plot latency --table8`` failed on them (min of an empty array); they are left out of the picture."""
+    from reloc.commands.profile_cmd import EXTRACT_STAGES, _plain, profile_report
+    from reloc.profiling import Profiler
+
+    prof = Profiler(window=1000)
+    for i in range(20):
+        t = i * 33_000_000
+        prof.record("capture.wait", t, 30_000_000)
+        prof.record("extract", t, 20_000_000)
+        prof.add_timings_ms({s: 20 / len(EXTRACT_STAGES) for s in EXTRACT_STAGES}, "extract.", t + 20_000_000)
+        prof.record("submap", t, 1_000_000)
+        prof.record("latency.capture_to_planes", t, 25_000_000)
+        if i % 5 == 0:
+            prof.record("reloc", t, 50_000_000)
+            prof.add_timings_ms({"prepare": 10.0, "select": 10.0, "verify": 20.0, "decide": 10.0}, "reloc.",
+                                t + 50_000_000)
+    doc = _plain(profile_report(prof, total_stage=None))
+    assert doc["table8"]["total"]["p50_ms"] is None and doc["table8"]["total"]["total_ms"] > 0
+    assert doc["stages"]["capture.wait"]["share"] is None  # a wait has no share of the work
+    f = tmp_path / "live.json"
+    f.write_text(json.dumps(doc, allow_nan=False))
+    out = tmp_path / "table8.png"
+    assert main(["plot", "latency", str(f), "--table8", "-o", str(out), "--width", "800", "--height", "400"]) == 0
+    assert _png_size(out) == (800, 400)
+
+
 def _summary(name, tp, tn, fp, fn):
     return {"name": name, "TP": tp, "TN": tn, "FP": fp, "FN": fn, "precision": tp / (tp + fp) if tp + fp else None,
             "recall": tp / (tp + fn) if tp + fn else None}

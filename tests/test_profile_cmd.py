@@ -126,8 +126,20 @@ def test_live_profile_of_a_recorded_folder(tmp_path):
 
     src = SimSource("living_room", n_frames=5, camera="oak-d", width=160, height=100, rate="fast")
     write_sequence(iter(src), src.scene, tmp_path / "seq")
+    # A config whose window may grow to 4 frames, with --window 8 given: the growth starts at 8 (it was refused,
+    # after the camera, the map and the warm-up).
+    cfg = tmp_path / "grow.yaml"
+    cfg.write_text("mapping:\n  submap_window_frames: 2\n  submap_max_window_frames: 4\n")
     d, trace, _ = _run(tmp_path, "--camera", str(tmp_path / "seq"), "--map", "sim:living_room", "--mode", "live",
-                       frames=5)
+                       "--config", str(cfg), "--window", "8", frames=5)
+    assert d["run"]["window_frames"] == 8
+    # Waits and end-to-end spans overlap the work: they have no share of it (they showed up to 300 %).
+    for name, st in d["stages"].items():
+        if name.startswith(("latency.", "capture.wait")):
+            assert st["share"] is None, name  # NaN, written as null
+        else:
+            assert 0.0 <= st["share"] <= 1.0 + 1e-9, name
+    assert any(name.startswith("latency.") for name in d["stages"])
     run = d["run"]
     assert run["frames_read"] == 5 and run["frames_processed"] + run["frames_dropped"] == 5
     assert d["stages"]["extract"]["count"] == run["frames_processed"] - sum(run["bad"].values())

@@ -121,6 +121,16 @@ def test_add_timings_places_parts_inside_their_parent():
     assert ev["reloc.decide.density"]["ts"] == pytest.approx(ev["reloc.decide"]["ts"])
     assert ev["reloc.decide.weights"]["ts"] == pytest.approx(ev["reloc.decide"]["ts"] + 500.0)
     assert ev["reloc.decide.weights"]["dur"] == pytest.approx(250.0)
+    # A part of a part goes inside its parent's span (it raised KeyError, with the stages before it recorded).
+    deep = Profiler(trace_capacity=16)
+    deep.add_timings_ms({"decide.density.kde": 0.4, "decide": 2.0, "decide.weights": 0.25, "decide.density": 1.0},
+                        end_ns=10_000_000)
+    ev = {e["name"]: e for e in deep.chrome_trace()["traceEvents"] if e["ph"] == "X"}
+    assert ev["decide.weights"]["ts"] == pytest.approx(ev["decide"]["ts"])
+    assert ev["decide.density"]["ts"] == pytest.approx(ev["decide"]["ts"] + 250.0)
+    assert ev["decide.density.kde"]["ts"] == pytest.approx(ev["decide.density"]["ts"])
+    assert ev["decide.density.kde"]["dur"] == pytest.approx(400.0)
+    assert deep.summary()["stages"]["decide.density.kde"]["count"] == 1
 
 
 def test_snapshot_gives_counts_totals_and_the_windowed_samples():

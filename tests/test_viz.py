@@ -61,3 +61,19 @@ def test_topdown_basis_is_map_xy_for_gravity_down_and_orthonormal_otherwise():
     B = topdown_basis(g)
     np.testing.assert_allclose(B @ B.T, np.eye(2), atol=1e-12)
     np.testing.assert_allclose(B @ (g / np.linalg.norm(g)), 0.0, atol=1e-12)
+    # Gravity along map x (it was NaN: x had nothing left across gravity) or near it.
+    for g in ([1.0, 0.0, 0.0], [-1.0, 0.0, 0.0], [0.95, 0.1, -0.3]):
+        g = np.asarray(g) / np.linalg.norm(g)
+        B = topdown_basis(g)
+        np.testing.assert_allclose(B @ B.T, np.eye(2), atol=1e-12)
+        np.testing.assert_allclose(B @ g, 0.0, atol=1e-12)
+    # Gravity +z (a z-down map): the picture's up is -y, and its axis says so (it said "map y").
+    import matplotlib.pyplot as plt
+    from reloc.viz.maps import finish_map_axes
+
+    B = topdown_basis(np.array([0.0, 0.0, 1.0]))
+    np.testing.assert_allclose(B, [[1, 0, 0], [0, -1, 0]])
+    fig, ax = plt.subplots()
+    finish_map_axes(ax, B)
+    assert (ax.get_xlabel(), ax.get_ylabel()) == ("map x [m]", "-map y [m]")
+    plt.close(fig)

@@ -212,7 +212,8 @@ def profile_report(profiler: Profiler, *, total_stage: str | None = "frame", **i
     if total_stage not in profiler.stage_names:  # shares of the pipeline's stages together
         denom = rows["total"]["total_ms"]
         for s in summary["stages"].values():
-            s["share"] = s["total_ms"] / denom if denom > 0 else math.nan
+            if math.isfinite(s["share"]):  # waits and end-to-end spans stay without a share (NaN)
+                s["share"] = s["total_ms"] / denom if denom > 0 else math.nan
     samples = {k: (ns / 1e6).round(5).tolist() for k, (_, _, ns) in profiler.snapshot().items()}
     return {**info, "stages": summary["stages"], "table8": rows, "samples_ms": samples,
             "table8_samples_ms": {k: [round(x, 5) for x in v] for k, v in row_samples.items()},
@@ -460,7 +461,10 @@ def _run_live(source, extract, relocalizer, profiler, window, map_planes, cfg, f
     from reloc.live.loop import LiveLoop
     from reloc.live.params import LiveParams
 
-    params = replace(LiveParams.from_config(cfg), window_frames=window)
+    params = LiveParams.from_config(cfg)
+    # A window that grows grows from --window on (the config's limit may be below a --window given here).
+    params = replace(params, window_frames=window,
+                     max_window_frames=max(window, params.max_window_frames) if params.max_window_frames else 0)
     loop = LiveLoop(source, extract, relocalizer, params=params, map_planes=map_planes, odometry="source",
                     profiler=profiler, on_status=echo, fuse_submap=make_submap_fuser(cfg))
     summary = loop.run(max_frames=frames).to_dict()

@@ -17,7 +17,7 @@ from pathlib import Path
 
 import click
 
-from reloc.commands.map_cmd import SOURCES, parse_frames, sequence_plane_source
+from reloc.commands.map_cmd import SOURCES, parse_frames, sequence_config, sequence_plane_source
 
 INSTALL_HINT = "pip install -e '.[viz]'"
 
@@ -149,7 +149,7 @@ def plot_map(map_path, results_path, truth_seq, submap_seq, query_frame, window,
     from reloc.mapping import MappingParams, build_submap
     from reloc.viz.maps import plot_map_topdown
 
-    cfg = load_config(config_path)
+    cfg = sequence_config(load_config(config_path), submap_seq, quiet=True)  # its noise law, as reloc locate
     mapping = MappingParams.from_config(cfg)
     seq = open_sequence(submap_seq)
     q = parse_frames(str(query_frame), len(seq), "--frame")[0]
@@ -223,7 +223,7 @@ def plot_frame(seq, index, source, config_path, map_path, out_path, title, width
             raise ValueError(f"{map_path}: the map records no config (meta.config); use --config")
         cfg = config_from_dict(recorded, source=f"{map_path}: meta.config")
     else:
-        cfg = load_config(config_path)
+        cfg = sequence_config(load_config(config_path), seq, quiet=True)  # its noise law, as reloc extract
     sequence = open_sequence(seq)
     i = parse_frames(str(index), len(sequence), "--index")[0]
     frame = sequence[i]

@@ -149,8 +149,14 @@ def _order(lat: LatencyData, stages: list[str] | None, max_stages: int) -> list[
     return sorted(lat.stats, key=cost, reverse=True)[:max_stages]
 
 
-def _fmt(ms: float) -> str:
+def _fmt(ms: float | None) -> str:
+    if ms is None or not math.isfinite(ms):
+        return "-"
     return f"{ms:.3g}" if ms < 1 else f"{ms:.1f}" if ms < 100 else f"{ms:.0f}"
+
+
+def _finite(x) -> bool:
+    return isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x)
 
 
 def plot_latency(
@@ -170,7 +176,10 @@ def plot_latency(
     ``height_px`` None: about 250 px per row of three histograms. Returns the path written."""
     names = _order(lat, stages, max_stages)
     with_samples = [n for n in names if n in lat.samples_ms and lat.samples_ms[n].size]
-    only_stats = [n for n in names if n not in with_samples]
+    # Rows known by their total alone (a live profile's "other" and "total": overlapping threads) are left out.
+    only_stats = [n for n in names if n not in with_samples and _finite(lat.stats.get(n, {}).get("p50_ms"))]
+    if not with_samples and not only_stats:
+        raise ValueError(f"no stage of {', '.join(names) or 'the file'} has samples or percentiles to plot")
     ncols = 1 if len(with_samples) == 1 else 2 if len(with_samples) in (2, 4) else 3
     nrows = math.ceil(len(with_samples) / ncols) if with_samples else 0
     stats_units = (0.5 + 0.2 * len(only_stats)) if only_stats else 0.0

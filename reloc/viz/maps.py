@@ -31,7 +31,8 @@ def topdown_basis(gravity: np.ndarray | None) -> np.ndarray:
     up = -g
     if abs(up[2]) > 0.999:
         return np.array([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]]) * np.array([[1.0], [np.sign(up[2])]])
-    e1 = np.array([1.0, 0.0, 0.0]) - up * up[0]
+    axis = np.eye(3)[0 if abs(up[0]) < 0.9 else 1]  # map x, or map y when up is near x (x has no direction left)
+    e1 = axis - up * float(up @ axis)
     e1 /= np.linalg.norm(e1)
     return np.stack([e1, np.cross(up, e1)])
 
@@ -70,8 +71,9 @@ def draw_map(ax, plane_map: PlaneSet, basis: np.ndarray, max_points: int = 200_0
 def finish_map_axes(ax, basis: np.ndarray) -> None:
     """Equal aspect, metre labels in map coordinates, a faint grid."""
     ax.set_aspect("equal", adjustable="datalim")  # fill the axes box; the data limits grow instead
-    ax.set_xlabel("map x [m]" if abs(basis[0, 0]) > 0.999 else "map, across gravity [m]")
-    ax.set_ylabel("map y [m]" if abs(basis[1, 1]) > 0.999 else "map, across gravity [m]")
+    ax.set_xlabel("map x [m]" if basis[0, 0] > 0.999 else "map, across gravity [m]")
+    ax.set_ylabel("map y [m]" if basis[1, 1] > 0.999 else "-map y [m]" if basis[1, 1] < -0.999 else
+                  "map, across gravity [m]")
     ax.grid(True, color="#eeeeee", lw=0.8, zorder=0)
     ax.set_axisbelow(True)
 
