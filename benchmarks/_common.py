@@ -182,6 +182,23 @@ def write_results(name: str, *, params: dict, results: Any, out_dir: Path | None
     return path
 
 
+def quick_presets(ap, args, presets: dict, argv: Sequence[str] | None = None) -> list[str]:
+    """A smoke run's settings: each of ``presets`` (argparse dest -> value) is set on ``args`` unless its option was
+    given on the command line (``argv``, default ``sys.argv[1:]``), which wins. Returns the dests kept as given."""
+    unset = object()
+    saved = {dest: ap.get_default(dest) for dest in presets}
+    ap.set_defaults(**{dest: unset for dest in presets})
+    try:
+        probe = ap.parse_args(argv)
+    finally:
+        ap.set_defaults(**saved)
+    kept = [dest for dest in presets if getattr(probe, dest) is not unset]
+    for dest, value in presets.items():
+        if dest not in kept:
+            setattr(args, dest, value)
+    return kept
+
+
 def parse_overrides(items: Iterable[str], option: str = "--set") -> dict:
     """``KEY=VALUE`` strings (a repeatable ``--set`` option) to a dict: VALUE (spaces around it dropped) parsed as a
     Python literal (numbers, True, None, tuples), ``true`` / ``false`` in any case as the config files spell them, else

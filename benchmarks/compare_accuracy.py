@@ -46,6 +46,22 @@ def _load(path: str) -> dict:
     return record
 
 
+# What makes two records' queries the same views (a query's name, office/robot/0, is the same under any seed):
+# their seeds, scenes, kinds and counts, and the camera that saw them. Maps and windows may differ: that is what a
+# comparison is for.
+QUERY_FIELDS = ("query_seed", "scenes", "query_kinds", "queries_per_kind", "query_spacing_frames",
+                "negatives_per_scene", "noise", "camera", "width", "height")
+
+
+def same_queries(before: dict, after: dict, source: str) -> list[str]:
+    """The fields of :data:`QUERY_FIELDS` in which the two records' specs of ``source`` (``extraction/kinect/ours``
+    reads the spec ``extraction/kinect``) differ, as ``field: before -> after``; a record without a spec has none."""
+    key = source.rsplit("/", 1)[0]
+    a = ((before.get("params") or {}).get("spec") or {}).get(key) or {}
+    b = ((after.get("params") or {}).get("spec") or {}).get(key) or {}
+    return [f"{f}: {a.get(f)!r} -> {b.get(f)!r}" for f in QUERY_FIELDS if a.get(f) != b.get(f)]
+
+
 def compare_source(before: dict, after: dict) -> dict:
     """One source of two records: counts, changed outcomes and map consistency, before and after."""
     def key(o):
@@ -103,6 +119,10 @@ def main(argv=None) -> int:
             s_after = s if args.variant is None else f"{s} with {args.variant}"
             if s not in ra["results"]["sources"] or s_after not in rb["results"]["sources"]:
                 continue
+            differ = same_queries(ra, rb, s)
+            if differ:
+                raise SystemExit(f"{a} and {b}: not the same queries for {s} ({'; '.join(differ)}): expected two "
+                                 "runs of one suite")
             c = compare_source(ra["results"]["sources"][s], rb["results"]["sources"][s_after])
             out["sources"][s] = c
             moves = Counter((x["before"], x["after"]) for x in c["changed"])
@@ -118,6 +138,10 @@ def main(argv=None) -> int:
             t["bent_planes"][1] += c["bent_after"]["planes"]
             t["bent_area_m2"][0] += c["bent_before"]["area_m2"]
             t["bent_area_m2"][1] += c["bent_after"]["area_m2"]
+        if not out["sources"]:
+            have = sorted(rb["results"]["sources"])
+            raise SystemExit(f"{pair}: no source to compare (asked for {', '.join(sources)}"
+                             f"{' with ' + args.variant if args.variant else ''}; the record holds {', '.join(have)})")
         pairs.append(out)
     print_table(["after", "source", "before TP/TN/FP/FN", "after", "changed", "bent planes"], rows)
     print()

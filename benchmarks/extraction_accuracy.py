@@ -267,7 +267,7 @@ def protocol1_methods(law: NoiseLaw, seed: int) -> tuple[dict[str, Callable[[Syn
         return methods, notes
     law_kwargs = dict(noise_model=law.model, noise_coeff=law.coeff, noise_direction=law.direction)
     methods["ours (defaults)"] = lambda sp, rng: _plane_of(
-        fit_plane(sp.points, **law_kwargs, seed=seed, **OURS_OVERRIDES)
+        fit_plane(sp.points, **{**law_kwargs, "seed": seed, **OURS_OVERRIDES})  # --set wins, the law included
     )
     for name, kw in OURS_VARIANTS.items():
         methods[name] = lambda sp, rng, kw=kw: _plane_of(fit_plane(sp.points, seed=seed, **law_kwargs, **kw))

@@ -59,7 +59,7 @@ def main() -> None:
     os.environ["NUMBA_NUM_THREADS"] = str(args.threads)  # before numba is imported (by reloc below)
 
     sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-    from _common import print_table, results_name, write_results
+    from _common import print_table, quick_presets, results_name, write_results
 
     try:
         results_name(args.name)  # before the simulator and numba are imported
@@ -78,7 +78,9 @@ def main() -> None:
     from sim.cameras import resolve_intrinsics
     from sim.noise import make_noise
 
-    n_frames = 40 if args.quick else args.frames
+    if args.quick:  # what the command line gives wins
+        quick_presets(ap, args, {"frames": 40})
+    n_frames = args.frames
     info = warm_up(("reloc.extraction",))
     print(f"warm-up: {info['kernels']} kernels in {info['seconds']:.1f} s ({info['cold']} compiled cold); "
           f"numba threads: {args.threads}")

@@ -31,13 +31,14 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 # _common first: it puts this checkout's root on sys.path before anything of the project is imported.
-from _common import print_table, results_name, write_results  # noqa: E402
+from _common import print_table, quick_presets, results_name, write_results  # noqa: E402
 
 from reloc._numba import warm_up  # noqa: E402
 from reloc.evaluation.suite import (  # noqa: E402
     SCENES, SUITE_MAP_TOUR, EvalSpec, build_scene_map, extraction_for_sensor, make_plane_source, suite_spec,
 )
 from reloc.extraction import ExtractionParams  # noqa: E402
+from sim import KERNEL_MODULES as SIM_KERNELS  # noqa: E402
 from sim.scenes import make_scene  # noqa: E402
 from sim.trajectories import TOURS  # noqa: E402
 
@@ -110,6 +111,8 @@ def main() -> None:
     ap.add_argument("--quick", action="store_true", help="Two scenes, 600 frames per trajectory (a smoke run).")
     ap.add_argument("--name", default=None, help="Result file stem (default map_accuracy, map_accuracy_quick).")
     args = ap.parse_args()
+    if args.quick:  # what the command line gives wins
+        quick_presets(ap, args, {"scenes": ",".join(SCENES[:2]), "map_frames": 600})
     name = args.name or ("map_accuracy_quick" if args.quick else "map_accuracy")
     try:
         results_name(name)
@@ -123,12 +126,10 @@ def main() -> None:
     if any(s not in SCENES for s in scenes) or not scenes:
         ap.error(f"--scenes: expected some of {', '.join(SCENES)}, got {args.scenes!r}")
     map_frames = args.map_frames
-    if args.quick:
-        scenes, map_frames = scenes[:2], 600
     if map_frames < 10:
         ap.error(f"--map-frames: expected at least 10, got {map_frames}")
 
-    info = warm_up(("reloc.extraction.pipeline", "reloc.mapping._kernels", "sim.render"))
+    info = warm_up(("reloc.extraction.pipeline", "reloc.mapping._kernels", *SIM_KERNELS))
     print(f"warm-up: {info['kernels']} kernels in {info['seconds']:.1f} s ({info['cold']} compiled cold)")
     rows, results = [], {}
     for noise in noises:

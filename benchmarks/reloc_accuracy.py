@@ -51,7 +51,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from _common import git_info, parse_overrides, print_table, results_name, write_results  # noqa: E402
+from _common import git_info, parse_overrides, print_table, quick_presets, results_name, write_results  # noqa: E402
 
 
 def paper_settings(params):
@@ -154,6 +154,8 @@ def main() -> int:
     if args.max_window is not None and 0 < args.max_window < args.window or (args.max_window or 0) < 0:
         ap.error(f"--max-window: expected 0 or at least --window ({args.window}), got {args.max_window}")
 
+    from sim import KERNEL_MODULES as SIM_KERNELS
+
     from reloc._numba import warm_up
     from reloc.evaluation.metrics import summarize
     from reloc.evaluation.prepared_io import PreparedSuiteError, built_with, load_prepared, mismatch, save_prepared
@@ -173,9 +175,9 @@ def main() -> int:
     except ValueError as exc:
         ap.error(str(exc))
 
-    if args.quick:
-        args.noise, args.queries, args.negatives, args.map_frames = "kinect", 3, 6, 800
-        args.scenes = args.scenes or "living_room,office"
+    if args.quick:  # what the command line gives wins
+        quick_presets(ap, args, {"noise": "kinect", "queries": 3, "negatives": 6, "map_frames": 800,
+                                 "scenes": "living_room,office"})
     scenes = tuple(args.scenes.split(",")) if args.scenes else SCENES
     sources = [("extraction", n) for n in args.noise.split(",")]
     if not args.no_oracle:
@@ -185,7 +187,7 @@ def main() -> int:
             if not (args.prepared / f"{source}_{noise}" / "suite.json").is_file():
                 ap.error(f"--prepared: {args.prepared / f'{source}_{noise}'} holds no prepared suite (save one with "
                          "--save-prepared and the same options)")
-    warm_up(("reloc.matching._kernels", "reloc.mapping._kernels", "reloc.extraction.pipeline", "sim.render"))
+    warm_up(("reloc.matching._kernels", "reloc.mapping._kernels", "reloc.extraction.pipeline", *SIM_KERNELS))
     ours = MatchingParams()
     methods = {"ours": ours, "ours, no optimistic rivals": replace(ours, optimistic_rivals=False),
                "paper settings": paper_settings(ours), **variants}

@@ -29,7 +29,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from _common import print_table, write_results  # noqa: E402
+from _common import print_table, quick_presets, write_results  # noqa: E402
 
 
 def _pct(values, q):
@@ -240,11 +240,13 @@ def main() -> int:
     ap.add_argument("--brute-budget-s", type=float, default=5.0, help="Largest brute-force time per query.")
     ap.add_argument("--quick", action="store_true", help="Few queries and sizes (a smoke run).")
     args = ap.parse_args()
-    if args.quick:
-        args.queries, args.sizes = 2, "50,200"
+    if args.quick:  # what the command line gives wins
+        quick_presets(ap, args, {"queries": 2, "sizes": "50,200"})
+    from sim import KERNEL_MODULES as SIM_KERNELS
+
     from reloc._numba import warm_up
 
-    warm_up(("reloc.matching._kernels", "reloc.mapping._kernels", "reloc.extraction.pipeline", "sim.render"))
+    warm_up(("reloc.matching._kernels", "reloc.mapping._kernels", "reloc.extraction.pipeline", *SIM_KERNELS))
     sizes = [int(s) for s in args.sizes.split(",")]
     part1 = table8(args.queries, args.window)
     part2 = map_size_sweep(sizes, 2 * args.queries, args.window, args.brute_budget_s)

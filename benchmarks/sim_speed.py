@@ -23,6 +23,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _common import results_name, write_results  # noqa: E402
 
 from reloc._numba import warm_up  # noqa: E402
+from sim import KERNEL_MODULES as SIM_KERNELS  # noqa: E402
 from sim import make_camera  # noqa: E402
 from sim.cameras import PRESETS, preset  # noqa: E402
 from sim.noise import NOISE_NAMES, make_noise  # noqa: E402
@@ -49,7 +50,7 @@ def main() -> None:
     except ValueError as exc:
         ap.error(str(exc))
 
-    info = warm_up(("sim._render_kernels", "sim._noise_kernels"))
+    info = warm_up(SIM_KERNELS)
     rows = []
     print(f"warm-up: {info['kernels']} kernels in {info['seconds']:.1f} s ({info['cold']} compiled cold)")
     print(f"\n{'scene':<15}{'planes':>7}{'polys':>7}  {'camera':<9}{'size':>10}{'median ms':>11}{'p95 ms':>9}")

@@ -174,13 +174,17 @@ def run_demo(spec: DemoSpec | None = None, cfg=None, *, progress: Callable[[str,
     for what, name in (("scene", spec.scene), ("negative_scene", spec.negative_scene)):
         if name not in SCENE_NAMES:  # before compiling, which takes a minute on a cold cache
             raise ValueError(f"{what}: expected one of {', '.join(SCENE_NAMES)}, got {name!r}")
+    if spec.negative_scene == spec.scene:  # its views would be counted as positives
+        raise ValueError(f"negative_scene: expected a scene other than the mapped one ({spec.scene!r})")
     cfg = cfg or Config()
     step = progress or (lambda *_: None)
     phases = {}
     t0 = time.perf_counter()
     step("compile", 0, 1)
-    info = warm_up(("reloc.matching._kernels", "reloc.mapping._kernels", "reloc.extraction.pipeline",
-                    "sim.render"), say=_say_above_progress)
+    from sim import KERNEL_MODULES as SIM_KERNELS
+
+    info = warm_up(("reloc.matching._kernels", "reloc.mapping._kernels", "reloc.extraction.pipeline", *SIM_KERNELS),
+                   say=_say_above_progress)
     phases["compile_s"] = time.perf_counter() - t0
     step("compile", 1, 1)
 

@@ -10,7 +10,11 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["simulate_frames", "make_camera"]
+__all__ = ["simulate_frames", "make_camera", "KERNEL_MODULES"]
+
+# The simulator's numba kernels, for a warm-up to compile before anything is timed (noise is imported only when a
+# frame is first made noisy, so a warm-up of sim.render alone left its compilation inside the first timed phase).
+KERNEL_MODULES = ("sim._render_kernels", "sim._noise_kernels")
 
 
 def make_camera(scene="living_room", trajectory="robot", n_frames: int = 10, noise="kinect", camera="kinect",

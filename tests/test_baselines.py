@@ -214,3 +214,20 @@ def test_protocol2_reports_the_purity_of_its_true_positives():
     assert stats["precision"] == 1.0
     assert stats["purity_mean"] == pytest.approx((60 / 70 + 1.0) / 2)
     assert stats["purity_p05"] == pytest.approx(60 / 70 + 0.05 * (1.0 - 60 / 70))
+
+
+def test_set_overrides_reach_ours_in_protocol1_even_where_the_law_also_sets_a_value(monkeypatch):
+    """``--set seed=1`` or ``--set noise_coeff=2e-3`` gave "multiple values for keyword argument" (the law's and the
+    seed's keywords were passed beside the overrides); an override wins over them now."""
+    from reloc.extraction import fit_plane
+
+    sp = ea.make_synthetic_plane(ea.Protocol1Setup(n_points=800), ea.NOISE_LAWS["kinect"], np.random.default_rng(1))
+    law = ea.NOISE_LAWS["kinect"]
+    for override in ({"seed": 1}, {"noise_coeff": 2e-3}, {}):
+        monkeypatch.setattr(ea, "OURS_OVERRIDES", dict(override))
+        methods, _ = ea.protocol1_methods(law, seed=0)
+        got = methods["ours (defaults)"](sp, np.random.default_rng(0))
+        kw = {"noise_model": law.model, "noise_coeff": law.coeff, "noise_direction": law.direction, "seed": 0,
+              **override}
+        n, d, _ = fit_plane(sp.points, **kw)
+        np.testing.assert_allclose(got, np.r_[n, d], atol=1e-12)

@@ -9,7 +9,7 @@ import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
 
-from _common import parse_overrides, results_name, write_results  # noqa: E402
+from _common import parse_overrides, quick_presets, results_name, write_results  # noqa: E402
 
 
 def test_overrides_parse_literals_and_keep_other_values_as_strings():
@@ -278,6 +278,26 @@ def test_the_accuracy_benchmark_runs_the_suite_reloc_eval_saves(tmp_path):
     assert len(ours) == 2 and [key(o) for o in ours] == [key(o) for o in theirs]
 
 
+def test_a_quick_run_keeps_the_options_given_on_the_command_line():
+    """``--quick --noise tof --queries 1`` ran Kinect with 3 queries and recorded the command as given; a smoke run's
+    presets now fill only the options left unset (given as ``--opt v`` or ``--opt=v``)."""
+    import argparse
+
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--noise", default="kinect,tof,stereo")
+    ap.add_argument("--queries", type=int, default=10)
+    ap.add_argument("--map-frames", type=int, default=3000)
+    ap.add_argument("--quick", action="store_true")
+    presets = {"noise": "kinect", "queries": 3, "map_frames": 800}
+    for argv, want, kept in ((["--quick"], ("kinect", 3, 800), []),
+                             (["--quick", "--noise", "tof", "--queries=1"], ("tof", 1, 800), ["noise", "queries"]),
+                             (["--map-frames", "3000", "--quick"], ("kinect", 3, 3000), ["map_frames"])):
+        args = ap.parse_args(argv)
+        assert quick_presets(ap, args, presets, argv) == kept
+        assert (args.noise, args.queries, args.map_frames) == want
+    assert ap.parse_args([]).noise == "kinect,tof,stereo"  # the parser's own defaults are left as they were
+
+
 def test_two_accuracy_records_are_compared_view_by_view_in_their_own_maps(tmp_path, capsys, monkeypatch):
     # A negative is named after its own scene's view, so the same query name comes up in two maps: the comparison
     # keys each outcome by (map, query), or the negative would overwrite the positive.
@@ -326,3 +346,18 @@ def test_two_accuracy_records_are_compared_view_by_view_in_their_own_maps(tmp_pa
     b.write_text(json.dumps(record({("office", "office/robot/1"): "TP"}, 1)))
     with pytest.raises(SystemExit, match="do not hold the same queries"):
         main(["--name", "cmp", f"{a}:{b}"])
+    # The same names from another query seed are other views: refused by the field that differs (they were paired).
+    spec = {"query_seed": 101, "map_seed": 1, "scenes": ["office", "corridor"], "noise": "kinect"}
+    for path, seeds in ((a, {}), (b, {"query_seed": 7, "map_seed": 9})):
+        r = record(before if path == a else after, 3)
+        r["params"] = {"spec": {"extraction/kinect": {**spec, **seeds}}}
+        path.write_text(json.dumps(r))
+    with pytest.raises(SystemExit, match="not the same queries for extraction/kinect/ours \\(query_seed: 101 -> 7\\)"):
+        main(["--name", "cmp", f"{a}:{b}"])
+    r = json.loads(b.read_text())
+    r["params"]["spec"]["extraction/kinect"].update(query_seed=101)  # another map seed: the same queries
+    b.write_text(json.dumps(r))
+    assert main(["--name", "cmp", f"{a}:{b}"]) == 0
+    # A variant the record does not hold: nothing to compare is an error, not empty tables.
+    with pytest.raises(SystemExit, match="no source to compare .*with y=2; the record holds extraction/kinect/ours"):
+        main(["--name", "cmpv", "--variant", "y=2", str(v)])

@@ -61,6 +61,11 @@ def test_recall_over_identifiable_queries_leaves_out_views_the_planes_cannot_pin
     assert d["unique"] == 2 and d["recall_unique"] == pytest.approx(0.5)
     assert json.loads(json.dumps(outs[1].to_dict()))["twin_confirmed"] is True
     assert json.loads(json.dumps(outs[3].to_dict()))["identifiable_reason"] == "pose weakly constrained"
+    # A positive answered with a wrong pose (FP) is in none of the recalls' populations: R_id stays at least R, and
+    # the identifiable views are a share of TP + FN (with it counted, 2 identifiable of 1 gave R_id 0.5 < R = 1).
+    s = summarize("s", [replace(o("TP", True), twin_confirmed=False), replace(o("FP", True), twin_confirmed=False)])
+    assert s.recall == 1.0 and (s.identifiable, s.identified, s.unique) == (1, 1, 1)
+    assert s.recall_identifiable == 1.0 and s.recall_unique == 1.0
 
 
 def test_a_twin_of_the_true_pose_is_confirmed_where_the_map_holds_the_twin_room():
@@ -247,7 +252,10 @@ def test_demo_names_an_unknown_scene_before_any_work():
 
     steps = []
     for spec, said in ((DemoSpec(scene="kitchen"), "scene: expected one of living_room"),
-                       (DemoSpec(negative_scene="garage"), "negative_scene: expected one of .* got 'garage'")):
+                       (DemoSpec(negative_scene="garage"), "negative_scene: expected one of .* got 'garage'"),
+                       # Negatives of the mapped scene were scored as positives (TP 8 of 4 positives).
+                       (DemoSpec(scene="office", negative_scene="office"),
+                        "negative_scene: expected a scene other than the mapped one \\('office'\\)")):
         with pytest.raises(ValueError, match=said):
             run_demo(spec, progress=lambda step, done, total: steps.append(step))
     assert steps == []

@@ -156,3 +156,19 @@ def test_on_a_cold_cache_a_helper_compiles_its_share_and_this_process_loads_it(t
     out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=300)
     assert out.returncode == 0, out.stderr
     assert out.stdout.strip().splitlines()[0] == "False 3 (0, 1) (0, 1)"  # switched off: all compiled here
+
+
+def test_the_simulators_kernels_are_all_warmed_up_where_simulated_frames_are_timed():
+    """``sim._noise_kernels`` is imported only when a frame is first made noisy, so a warm-up of ``sim.render`` left
+    its compilation (1.7 s) inside the first timed phase: the demo's map, reloc_accuracy's prepare_s. Every kernel
+    module of the simulator is in ``sim.KERNEL_MODULES``, and the demo and the benchmarks that simulate warm those."""
+    import sim
+
+    root = Path(__file__).resolve().parent.parent
+    files = sorted(f"sim.{f.stem}" for f in (root / "sim").glob("_*kernels.py"))
+    assert sorted(sim.KERNEL_MODULES) == files and "sim._noise_kernels" in files
+    for path in ("reloc/demo.py", "benchmarks/reloc_accuracy.py", "benchmarks/reloc_latency.py",
+                 "benchmarks/map_accuracy.py", "benchmarks/sim_speed.py"):
+        text = (root / path).read_text()
+        assert "*SIM_KERNELS" in text or "warm_up(SIM_KERNELS)" in text, path
+        assert '"sim.render")' not in text, path

@@ -17,7 +17,9 @@ weakest direction, after the least-squares refinement, within the TP thresholds 
 identifiable cannot be answered right by any search under the same acceptance rules: its submap does not pin the
 pose down (a corridor view with nothing across the corridor) or the map does not hold what it sees. ``R_id``, the
 recall over the identifiable queries, is what the search and the decision among poses lose; ``R`` also counts what
-the planes cannot tell.
+the planes cannot tell. Both are over the positives ``R`` counts, TP and FN: a positive answered with a wrong pose
+(FP) is in neither (it was in ``R_id``'s, which could then fall below ``R``, and the identifiable count could
+exceed TP + FN).
 
 An identifiable query is *unique* when, moreover, no symmetric twin of its true pose (``S @ T`` for each symmetry
 ``S`` of the scene: the next meeting room, the corridor turned end for end; see
@@ -134,7 +136,7 @@ class Summary:
     median_ms: float
     p95_ms: float
     stage_mean_ms: dict
-    identifiable: int = 0  # positive, unambiguous queries whose true pose the map confirms
+    identifiable: int = 0  # positive, unambiguous queries (TP or FN) whose true pose the map confirms
     identified: int = 0  # of those, the TPs
     recall_identifiable: float = math.nan  # identified / identifiable
     unique: int = 0  # identifiable queries with no symmetric twin of the true pose confirmed as well
@@ -156,10 +158,11 @@ def summarize(name: str, outcomes: list[Outcome]) -> Summary:
     over ``outcomes``."""
     labels = [o.label for o in outcomes]
     tp, tn, fp, fn = (labels.count(x) for x in ("TP", "TN", "FP", "FN"))
-    identifiable = sum(o.identifiable is True for o in outcomes)
-    identified = sum(o.identifiable is True and o.label == "TP" for o in outcomes)
-    unique = sum(o.identifiable is True and o.twin_confirmed is False for o in outcomes)
-    identified_unique = sum(o.identifiable is True and o.twin_confirmed is False and o.label == "TP" for o in outcomes)
+    counted = [o for o in outcomes if o.label in ("TP", "FN")]  # the positives of R = TP / (TP + FN)
+    identifiable = sum(o.identifiable is True for o in counted)
+    identified = sum(o.identifiable is True and o.label == "TP" for o in counted)
+    unique = sum(o.identifiable is True and o.twin_confirmed is False for o in counted)
+    identified_unique = sum(o.identifiable is True and o.twin_confirmed is False and o.label == "TP" for o in counted)
     errs = np.array([(o.translation_error_m, o.rotation_error_deg) for o in outcomes if o.label == "TP"]).reshape(-1, 2)
     times = np.array([o.total_ms for o in outcomes if math.isfinite(o.total_ms)])
     stages: dict[str, list[float]] = {}
