@@ -155,6 +155,16 @@ def stereo_noise_law(calibration, focal_px: float, subpixel: bool = True) -> tup
     return "stereo", sigma_px / (f * baseline_m)
 
 
+def device_calibration(device):
+    """The calibration the device works with (``getCalibration``: what is flashed, with depthai's fallbacks merged
+    in, such as the IMU extrinsics of boards whose EEPROM holds an identity); ``readCalibration`` (the EEPROM alone)
+    only when that fails."""
+    try:
+        return device.getCalibration()
+    except RuntimeError:
+        return device.readCalibration()
+
+
 def rotation_cam_imu(calibration, socket, rectification: np.ndarray | None = None) -> np.ndarray:
     """(3, 3) rotation taking IMU vectors into the depth camera frame: ``R_cam_imu`` from the calibration's
     IMU-to-camera extrinsics of ``socket``; for depth in a rectified frame, ``rectification`` (``R_rect_cam``) is
@@ -407,6 +417,9 @@ class OakSource(FrameSource):
         backoff = tuple(float(b) for b in backoff_s)
         if not backoff or min(backoff) < 0:
             raise ValueError(f"backoff_s: expected a non-empty list of waits >= 0, got {list(backoff_s)}")
+        if check_flag("subpixel", subpixel) and check_flag("extended_disparity", extended_disparity):
+            raise ValueError("subpixel, extended_disparity: depthai 3.x cannot do both (its StereoDepth calls them "
+                             "incompatible); expected one of them false")
         self.settings = dict(preset=preset, width=width, height=height, fps=float(fps),
                              subpixel=check_flag("subpixel", subpixel), lr_check=check_flag("lr_check", lr_check),
                              extended_disparity=check_flag("extended_disparity", extended_disparity),
@@ -574,7 +587,7 @@ class OakSource(FrameSource):
         depth_q = stereo.depth.createOutputQueue(maxSize=4, blocking=False)
         imu_q = None
         R_cam_imu = None
-        calibration = device.readCalibration()
+        calibration = device_calibration(device)
         self._calibration = calibration
         if s["imu"] and device.getConnectedIMU() not in ("NONE", ""):
             try:
@@ -583,7 +596,9 @@ class OakSource(FrameSource):
                 self.stats.event(f"IMU not used: no IMU-to-camera extrinsics ({exc})")
             if R_cam_imu is not None:
                 imu = pipeline.create(dai.node.IMU)
-                imu.enableIMUSensor(dai.IMUSensor.ACCELEROMETER_RAW, s["imu_rate_hz"])
+                # In the DepthAI IMU frame (the one the IMU-to-camera extrinsics start from), with the stored
+                # affine calibration applied; RAW is the sensor's native frame in depthai 3.x firmware.
+                imu.enableIMUSensor(dai.IMUSensor.ACCELEROMETER_CALIBRATED, s["imu_rate_hz"])
                 imu.setBatchReportThreshold(5)
                 imu.setMaxBatchReports(20)
                 imu_q = imu.out.createOutputQueue(maxSize=50, blocking=False)

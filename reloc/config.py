@@ -710,7 +710,8 @@ class OakConfig(_Section):
     fps: float = Field(30.0, gt=0, le=120, description="Camera frame rate.")
     subpixel: bool = Field(True, description="Subpixel disparity (finer depth steps far away).")
     lr_check: bool = Field(True, description="Left-right consistency check (removes occlusion errors).")
-    extended_disparity: bool = Field(False, description="Extended disparity range (closer minimum depth).")
+    extended_disparity: bool = Field(
+        False, description="Extended disparity range (closer minimum depth; depthai 3.x cannot do it with subpixel).")
     align_to: Literal["left", "right", "rgb"] = Field("left", description="Camera whose view the depth is aligned to.")
     imu: bool = Field(True, description="Gravity from the IMU accelerometer when the device has one.")
     imu_rate_hz: int = Field(100, ge=1, le=500, description="Accelerometer report rate.")

@@ -357,6 +357,60 @@ class HostOak(OakSource):
             raise ValueError("scripted failure")
 
 
+class _Recorder:
+    """A stand-in for a device-side node or the device: every call is recorded and returns this object, but for
+    the calls given a value; ``self.out`` and ``self.depth`` are outputs with queues."""
+
+    def __init__(self, log, name, values=None):
+        self._log, self._name, self._values = log, name, values or {}
+
+    def __getattr__(self, attr):
+        if attr in ("out", "depth"):
+            return _Recorder(self._log, f"{self._name}.{attr}")
+
+        def call(*args, **kwargs):
+            self._log.append((self._name, attr, args, kwargs))
+            value = self._values.get(attr, self)
+            return value() if callable(value) and attr in self._values else value
+        return call
+
+
+class _Queue:
+    def get(self, timeout):
+        return None
+
+    def tryGetAll(self):
+        return []
+
+
+def test_the_pipeline_uses_the_devices_calibration_and_the_calibrated_accelerometer():
+    """The wiring of a session, with the device and its pipeline replaced by recorders (no device is attached):
+    the IMU extrinsics come from ``getCalibration`` (the EEPROM's ``readCalibration`` does not merge depthai's
+    fallbacks: boards whose EEPROM holds an identity IMU rotation got gravity in the sensor's own axes), and the
+    accelerometer stream is the calibrated one in the DepthAI IMU frame (RAW is the sensor's native frame)."""
+    R_cam_imu = np.array([[0.0, -1.0, 0.0], [0.0, 0.0, -1.0], [1.0, 0.0, 0.0]])
+    used, flashed = _imu_calibration(R_cam_imu), _imu_calibration(np.eye(3))
+    log = []
+    device = _Recorder(log, "device", {"getCalibration": lambda: used, "readCalibration": lambda: flashed,
+                                       "getConnectedIMU": lambda: "BNO086"})
+    queues = {"createOutputQueue": lambda: _Queue()}
+    pipeline = _Recorder(log, "pipeline", {"isRunning": lambda: False,
+                                           "create": lambda: _Recorder(log, "node", queues)})
+    src = HostOak([], reconnect=False)
+    src._run_pipeline(dai, device, pipeline)
+    assert src._calibration is used and ("device", "readCalibration", (), {}) not in log
+    np.testing.assert_allclose(src._assembler.R_cam_imu, R_cam_imu, atol=1e-6)
+    sensors = [args[0] for name, attr, args, _ in log if attr == "enableIMUSensor"]
+    assert sensors == [dai.IMUSensor.ACCELEROMETER_CALIBRATED]
+    # A device whose working calibration cannot be read: the flashed one.
+    device = _Recorder(log, "device", {"getCalibration": lambda: (_ for _ in ()).throw(RuntimeError("no")),
+                                       "readCalibration": lambda: flashed, "getConnectedIMU": lambda: "NONE"})
+    src._run_pipeline(dai, device, pipeline)
+    assert src._calibration is flashed
+    with pytest.raises(ValueError, match="subpixel, extended_disparity: depthai 3.x cannot do both"):
+        HostOak([], subpixel=True, extended_disparity=True)
+
+
 def test_source_reconnects_with_backoff_and_keeps_stamps_increasing():
     src = HostOak([(3, "xlink"), (4, "wait")], missing_searches=2, reconnect=True, backoff_s=(0.01, 0.02),
                   frame_timeout_s=1.0)
