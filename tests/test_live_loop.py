@@ -632,3 +632,53 @@ def test_a_frame_delivered_late_is_not_counted_missing():
 
     summary = LiveLoop(Source(), _NoPlanes(), _AlwaysLocated()).run()
     assert summary.frames["captured"] == 9 and summary.frames["source_gaps"] == 2
+
+
+def test_a_status_output_that_fails_is_counted_and_the_run_still_ends_on_time(living_room_map):
+    """``reloc run`` prints status lines with click.echo to stderr; once the reader of a pipe goes away that raises
+    BrokenPipeError. It escaped the main loop, whose shutdown then waited for a processing thread that only the
+    source's end stops: an endless source (a camera) ran on past ``duration_s`` for good. Now the failure is
+    counted and noted once, and the run ends on time with every thread joined."""
+    map_planes, reloc = living_room_map
+    src = sim_source(200, rate=60.0, loop=True)  # paced and endless
+
+    def broken(line):
+        raise BrokenPipeError(32, "Broken pipe")
+
+    loop = LiveLoop(src, TruthPlanes(src.scene), reloc, params=LiveParams(status_period_s=0.05),
+                    map_planes=map_planes, on_status=broken)
+    done = {}
+    t = threading.Thread(target=lambda: done.update(summary=loop.run(duration_s=1.0)), daemon=True)
+    t.start()
+    t.join(30.0)
+    ended = not t.is_alive()
+    if not ended:
+        loop.stop()
+        t.join(30.0)
+    src.close()
+    assert ended, "run() did not return within 30 s of a 1 s run"
+    assert loop_threads_alive() == []
+    s = done["summary"]
+    assert s.source_events["status_errors"] >= 2 and s.frames["processed"] > 10
+    assert sum("status output failed (BrokenPipeError" in e for e in s.source_events["events"]) == 1
+
+
+def test_a_rejection_answers_a_request_with_its_own_status():
+    """TOO_FEW_PLANES only for the rejection before any search; the relocalizer's other reasons name planes as well
+    ("contradicted by the map: 5 planes matched less 3 in conflict") and went out as TOO_FEW_PLANES."""
+    from firmware_bridge.messages import PoseStatus
+    from reloc.live.loop import _reject_status
+    from reloc.matching.relocalizer import too_few_planes_reason
+
+    cases = {
+        too_few_planes_reason(3, 80, 5): PoseStatus.TOO_FEW_PLANES,
+        too_few_planes_reason(12, 2, 5): PoseStatus.TOO_FEW_PLANES,
+        "ambiguous: 5 poses, best score 0.515 not 1.55x the runner-up 0.342": PoseStatus.AMBIGUOUS,
+        "contradicted by the map: 5 planes matched less 3 in conflict with it": PoseStatus.NO_MATCH,
+        "pose weakly constrained: 0.34 m^2 of matched planes along its weakest direction": PoseStatus.NO_MATCH,
+        "refined pose does not verify: no least-squares pose over its matched planes (few": PoseStatus.NO_MATCH,
+        "no hypothesis passed verification": PoseStatus.NO_MATCH,
+        "not_ready: no usable frames": PoseStatus.NOT_READY,
+    }
+    for reason, status in cases.items():
+        assert _reject_status(reason, PoseStatus) == status, reason

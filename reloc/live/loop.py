@@ -297,6 +297,7 @@ class LiveLoop:
         self.relocs_total = 0
         self.relocs_ok_total = 0
         self.events: deque[str] = deque(maxlen=200)
+        self.status_errors = 0  # status lines whose output (on_status) raised
         self.errors: list[str] = []
         self.state = "starting"  # starting | localized | searching
         self.last_error = ""
@@ -384,14 +385,27 @@ class LiveLoop:
                     fps = (self.processed - last[1]) / max(now - last[0], 1e-9)
                     last = (now, self.processed)
                     if self.on_status is not None:
-                        self.on_status(self.status_line(fps))
+                        self._report_status(self.status_line(fps))
                     next_status = now + self.params.status_period_s
         except KeyboardInterrupt:
             self.events.append("interrupted")
             self.stop()
+        except BaseException:
+            self.stop()  # else the shutdown waits for a processing thread that only the source's end stops
+            raise
         finally:
             self._shutdown()
         return self.summary(time.monotonic() - self._t_start, time.process_time() - cpu0)
+
+    def _report_status(self, line: str) -> None:
+        """A status line to ``on_status``; an output that fails (stderr piped into a reader that went away:
+        BrokenPipeError) is counted and noted once, and the loop goes on."""
+        try:
+            self.on_status(line)
+        except Exception as exc:  # noqa: BLE001 - whatever the output raises, the robot keeps its poses
+            self.status_errors += 1
+            if self.status_errors == 1:
+                self.events.append(f"status output failed ({exc!r}); later status lines dropped while it fails")
 
     # -- threads -----------------------------------------------------------------------------------------------
     def _guard(self, fn, name):
@@ -873,7 +887,7 @@ class LiveLoop:
             source=_jsonable(info), duration_s=duration_s, cpu_s=cpu_s, frames=frames,
             source_events={"end": self.source_end, "disconnects": self.disconnects, "reconnects": self.reconnects,
                            "reconnect_failures": self.reconnect_failures, "stalls": self.stalls,
-                           "events": list(self.events)},
+                           "events": list(self.events), "status_errors": self.status_errors},
             odometry={"used": dict(self.odometry_used), "jumps": self.odometry_jumps, "resets": self.odometry_resets,
                       "frames_left_out": int((self._fuse_stats or {}).get("frames_left_out", 0))},
             tracking={"lost": dict(self.lost_events), "superseded_requests": self._mailbox.superseded,
@@ -895,12 +909,17 @@ def _carry_trigger(dropped: tuple, oldest: tuple) -> tuple:
 
 
 def _reject_status(reason: str, PoseStatus) -> int:
+    """The status a rejection answers a firmware request with: TOO_FEW_PLANES only for the rejection before any
+    search (too few planes to try; most other reasons name planes too: "contradicted by the map: 5 planes matched
+    less 3 in conflict" is NO_MATCH)."""
+    from reloc.matching.relocalizer import TOO_FEW_PLANES_RE
+
     r = reason.lower()
     if r.startswith("not_ready"):
         return PoseStatus.NOT_READY
-    if "ambig" in r:
+    if r.startswith("ambiguous"):
         return PoseStatus.AMBIGUOUS
-    if "few" in r or "planes" in r:
+    if TOO_FEW_PLANES_RE.match(reason):
         return PoseStatus.TOO_FEW_PLANES
     return PoseStatus.NO_MATCH
 

@@ -17,6 +17,7 @@ The winner is refined by least squares over all its matched planes and verified 
 from __future__ import annotations
 
 import math
+import re
 import time
 from dataclasses import dataclass, field, replace
 
@@ -55,6 +56,15 @@ STAGES = ("prepare", "select", "transform", "verify", "decide", "refine")
 # refinement of every mode for the decision over refined poses, and the twin probe before accepting (relaxed
 # selection, transforms and verification).
 SUBSTAGES = ("decide.weights", "decide.density", "decide.tighten", "decide.probe")
+
+
+def too_few_planes_reason(submap_planes: int, map_planes: int, needed: int) -> str:
+    """The reason of a query rejected before any search: too few planes on one side (:data:`TOO_FEW_PLANES_RE`)."""
+    return f"{submap_planes} submap planes and {map_planes} map planes; at least {needed} needed"
+
+
+#: Matches :func:`too_few_planes_reason` and nothing else a rejection says (many other reasons name planes).
+TOO_FEW_PLANES_RE = re.compile(r"^\d+ submap planes and \d+ map planes; at least \d+ needed$")
 
 
 @dataclass(frozen=True)
@@ -640,7 +650,7 @@ class Relocalizer:
 
         if S < min_matched or len(self.index) < 3:
             return finish(_rejected(
-                f"{S} submap planes and {len(self.index)} map planes; at least {min_matched} needed", counts, timings
+                too_few_planes_reason(S, len(self.index), min_matched), counts, timings
             ))
         hyps = _Hypotheses(S)
         coarse = judged = hyps
@@ -838,7 +848,7 @@ class Relocalizer:
         min_matched = p.min_matched_planes if p.scene_uniqueness else 3
         if S < min_matched or len(self.index) < 3:
             return finish(_rejected(
-                f"{S} submap planes and {len(self.index)} map planes; at least {min_matched} needed", counts, timings
+                too_few_planes_reason(S, len(self.index), min_matched), counts, timings
             ))
         # The verification takes the first three planes of the candidate row first; any three do for a given pose.
         cand = np.array([[0, 1, 2, 0, 0, 0]], dtype=np.int32)
