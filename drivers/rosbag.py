@@ -4,7 +4,7 @@ Read from the bag:
 
 - depth: ``sensor_msgs/msg/Image`` with encoding ``16UC1``/``mono16`` (millimetres, REP 118) or ``32FC1`` (metres);
   0 and NaN become NaN. ``stamp_ns`` is the message header stamp.
-- intrinsics: the first ``sensor_msgs/msg/CameraInfo`` (``k``, width, height) of the info topic.
+- intrinsics: the first ``sensor_msgs/msg/CameraInfo`` (``k``, ROS 1's ``K``, width, height) of the info topic.
 - odometry (optional): ``nav_msgs/msg/Odometry``, the pose of ``child_frame_id`` in the odometry frame, associated
   with each depth stamp by the nearest message within ``max_dt_s``. With ``T_base_cam`` (the camera mounting in
   the child frame) the frame pose is ``T_odom_base @ T_base_cam``; without it the child frame is taken to be the
@@ -88,7 +88,7 @@ class RosbagSource(FrameSource):
                 break
             if info is None:
                 raise ValueError(f"{self.path}: no message on the camera info topic {self.info_topic}")
-            K = np.asarray(info.k, dtype=np.float64).reshape(3, 3)
+            K = np.asarray(info.k if hasattr(info, "k") else info.K, dtype=np.float64).reshape(3, 3)  # ROS 1: K
             depth_conns = [c for c in reader.connections if c.topic == self.depth_topic]
             first = next(iter(reader.messages(depth_conns)), None)
             if first is None:

@@ -1,5 +1,5 @@
-"""ROS 2 bags: a tiny bag written with rosbags itself (depth 16UC1 or 32FC1, CameraInfo, odometry) reads back as
-frames with the same depths, intrinsics, stamps and poses."""
+"""ROS bags: a tiny ROS 2 bag written with rosbags itself (depth 16UC1 or 32FC1, CameraInfo, odometry) reads back as
+frames with the same depths, intrinsics, stamps and poses; a ROS 1 bag reads too."""
 
 from __future__ import annotations
 
@@ -121,3 +121,34 @@ def test_bag_errors(tmp_path):
         RosbagSource(tmp_path / "bag", depth_topic="/nope")
     with pytest.raises(FileNotFoundError, match=r"missing: rosbag not found"):
         RosbagSource(tmp_path / "missing")
+
+
+def test_a_ros1_bag_reads_its_camera_matrix_K(tmp_path):
+    """ROS 1's CameraInfo spells the matrix ``K`` (ROS 2: ``k``); rosbags keeps the name, and every ROS 1 bag failed
+    with AttributeError before its first frame."""
+    from rosbags.rosbag1 import Writer as Writer1
+
+    ts = get_typestore(Stores.ROS1_NOETIC)
+    Image, Info = ts.types["sensor_msgs/msg/Image"], ts.types["sensor_msgs/msg/CameraInfo"]
+    Header, Time = ts.types["std_msgs/msg/Header"], ts.types["builtin_interfaces/msg/Time"]
+    roi = ts.types["sensor_msgs/msg/RegionOfInterest"](x_offset=0, y_offset=0, height=0, width=0, do_rectify=False)
+    path = tmp_path / "ros1.bag"
+    stamps = [1_700_000_000_000_000_000 + i * 33_333_333 for i in range(3)]
+    with Writer1(path) as w:
+        ci = w.add_connection("/camera/depth/camera_info", Info.__msgtype__, typestore=ts)
+        cd = w.add_connection("/camera/depth/image_raw", Image.__msgtype__, typestore=ts)
+        for i, s in enumerate(stamps):
+            hdr = Header(seq=i, stamp=Time(sec=s // 10**9, nanosec=s % 10**9), frame_id="cam")
+            info = Info(header=hdr, height=H, width=W, distortion_model="plumb_bob", D=np.zeros(5), K=K.reshape(-1),
+                        R=np.eye(3).reshape(-1), P=np.zeros(12), binning_x=0, binning_y=0, roi=roi)
+            raw = np.full((H, W), 1500, "<u2")
+            img = Image(header=hdr, height=H, width=W, encoding="16UC1", is_bigendian=0, step=W * 2,
+                        data=np.frombuffer(raw.tobytes(), np.uint8))
+            w.write(ci, s, ts.serialize_ros1(info, Info.__msgtype__))
+            w.write(cd, s, ts.serialize_ros1(img, Image.__msgtype__))
+    with RosbagSource(path, rate="fast") as src:
+        k = src.intrinsics
+        assert (k.fx, k.fy, k.cx, k.cy, k.width, k.height) == (50.0, 51.0, 3.5, 2.5, W, H)
+        frames = list(src)
+    assert [f.stamp_ns for f in frames] == stamps
+    assert all(np.allclose(f.depth_m, 1.5) for f in frames)
