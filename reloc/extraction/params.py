@@ -76,7 +76,7 @@ class ExtractionParams:
     ``grow_offset_sigmas`` depth sigmas), and the centroids are within ``undergrown_radius_scale`` times the larger
     radius. Layers (frames only, with merging on): two planes whose normals are within
     ``undergrown_max_angle_rad``, the smaller one's centroid within ``max_thickness_sigmas`` depth sigmas of the
-    larger plane, and which share at least ``layer_min_shared`` of the smaller one's 2x2 pixel blocks are one
+    larger plane, and which share at least ``layer_min_shared`` of the smaller one's blocks of 2x2 pixels used are one
     surface seen through the same rays (stereo's disparity steps cut a far wall into such layers): they become one
     plane, refit from both (0 = never; None, the default, is 0.5 with a stereo camera's noise law and 0 with every
     other: :attr:`layer_share`; see docs/BENCHMARKS.md, "Stereo's far walls in layers" and "Stereo's layers merged by
