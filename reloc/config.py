@@ -818,6 +818,8 @@ def config_from_dict(data: Any, source: str = "<config>") -> Config:
         data = {}
     if not isinstance(data, dict):
         raise ConfigError(source, [f"expected a mapping of sections at the top level, got {type(data).__name__}"])
+    # A section with every key commented out is YAML's null: its defaults, as an empty file has.
+    data = {k: ({} if v is None else v) for k, v in data.items()}
     try:
         return Config.model_validate(data)
     except ValidationError as exc:

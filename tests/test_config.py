@@ -36,6 +36,18 @@ def test_empty_file_gives_defaults(tmp_path):
     assert load_config(write(tmp_path, "")) == Config()
 
 
+def test_a_section_with_every_key_commented_out_takes_its_defaults(tmp_path):
+    """``extraction:`` with its keys commented out is YAML's null; it was refused ("Input should be a valid
+    dictionary"), though an empty file is valid. An unknown section is still named, whatever its value."""
+    p = tmp_path / "c.yaml"
+    p.write_text("extraction:\n  # voxel_size_m: 0.2\nmatching:\n  initial_planes: 6\n")
+    cfg = load_config(p)
+    assert cfg.extraction == Config().extraction and cfg.matching.initial_planes == 6
+    p.write_text("extractoin:\n")
+    with pytest.raises(ConfigError, match="extractoin"):
+        load_config(p)
+
+
 def test_dump_round_trips(tmp_path):
     p = write(tmp_path, dump_config())
     assert load_config(p) == Config()

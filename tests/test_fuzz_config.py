@@ -108,7 +108,7 @@ def check_config(data: bytes) -> None:
     # Nothing silently corrected: each value the file sets is the config's value, with its type.
     doc = yaml.safe_load(data.decode("utf-8")) or {}
     for section, body in doc.items():
-        for key, value in body.items():
+        for key, value in (body or {}).items():  # a null section: its defaults
             got = getattr(getattr(cfg, section), key)
             assert _same(got, value), f"{section}.{key}: file says {value!r}, config holds {got!r}"
     # Usable by every stage.
