@@ -27,7 +27,9 @@ __all__ = ["camera_rotation", "pose_from", "robot", "handheld", "random_views", 
 
 TRAJECTORY_NAMES = ("robot", "handheld", "random")
 # Where robot and hand-held trajectories go: shortest paths to random places ("random"; a short one may never enter
-# some room), or every room entered in turn ("rooms", as a mapping run that must leave no room out).
+# some room), or every room entered in turn ("rooms", as a mapping run that must leave no room out; a robot's turns on
+# the spot take frames the tour's length does not count, so a run too short for a whole round leaves its last rooms
+# out: in 3,000 frames the suite's robot enters 4 of the apartment's 6 rooms, the hand-held walk all 6).
 TOURS = ("random", "rooms")
 _STREAM = {"robot": 11, "handheld": 12, "random": 13}
 
