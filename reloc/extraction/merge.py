@@ -262,10 +262,12 @@ def refine_merged_planes(
     out, kept_to_final = _merge_and_pack(plane_of_voxel, k_planes[:nk], k_wmom[:nk], k_wscat[:nk], k_counts[:nk],
                                          k_sums[:nk], k_neff[:nk], k_radius[:nk], merge=merge, ray=ray,
                                          fragment_args=fragment_args, n_merges_before=merged.n_fragment_merges)
-    if point_step != 1:
+    if point_step != 1 or np.any(old_to_kept[:n] < 0):
+        # Not every point seen, or a bevel dropped: its points go to the planes around it, so the plane set assigns
+        # every point again (the pass's own assignment would leave them on no plane, and out of their counts).
         return out
-    # The pass's planes to the output's (the plane set applies it to the points): removed bevels lose their
-    # points, merged fragments go to their survivor.
+    # The pass's planes to the output's (the plane set applies it to the points): merged fragments go to their
+    # survivor.
     table = np.empty(n, np.int32)
     kfin.compose_table(old_to_kept, kept_to_final, table)
     n_out = len(out)
