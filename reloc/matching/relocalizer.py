@@ -585,6 +585,11 @@ class Relocalizer:
         rivals = tight.unrefined[tight.unrefined != tight.leader[decision.best]]
         if tight.impossible is not None and len(tight.impossible):
             rivals = rivals[~np.isin(rivals, tight.impossible)]
+        if len(rivals):  # a rival is at another place: a mode within the distinct thresholds of the winner is it
+            w = decision.best
+            R = np.concatenate([tight.R[w:w + 1], hyps.R[rivals]])
+            t = np.concatenate([tight.t[w:w + 1], hyps.t[rivals]])
+            rivals = rivals[distinct_from(R, t, 0, self.params)[1:]]
         if not len(rivals):
             return decision
         a = rivals[np.argmax(quality[rivals])]

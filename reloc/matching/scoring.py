@@ -92,7 +92,8 @@ def frequency_weights(
     evidence against a pose, not merely missing evidence. With ``areas`` (S,), a plane's weight also grows with its
     area up to ``evidence_area_m2`` (a 0.2 m^2 facet is weaker evidence than a wall, and is more often clutter).
     Returns ``(w (H,), group (H,) int32, leaders (G,) int32, plane_w (S,))``: the leader of a mode is its best
-    hypothesis; ``plane_w[j]`` is the weight a match of submap plane j carries (``1 / f_j``, 1 if never matched).
+    hypothesis; ``plane_w[j]`` is the weight a match of submap plane j carries (``1 / f_j``, 1 if never matched;
+    with ``areas`` both times ``min(1, area_j / evidence_area_m2)``).
     """
     H = R.shape[0]
     order = np.argsort(-quality, kind="stable").astype(np.int64)
