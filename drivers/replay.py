@@ -71,7 +71,8 @@ class ReplaySource(FrameSource):
         n = len(seq)
         period = int(round(1e9 / seq.rate_hz)) if seq.rate_hz else 33_333_333
         span = int(seq.stamps_ns[-1] - seq.stamps_ns[0]) + period
-        seq_span = int(seq.seqs[-1] - seq.seqs[0]) + 1
+        seq_step = int(seq.seqs[1] - seq.seqs[0]) if n > 1 else 1  # a pass goes on as the slice's step does
+        seq_span = int(seq.seqs[-1] - seq.seqs[0]) + seq_step
         k = 0
         while not self.closed:
             for i in range(n):

@@ -163,6 +163,14 @@ def test_replay_loop_keeps_stamps_increasing(real_data):
     assert [f.seq for f in frames] == list(range(12))
     np.testing.assert_array_equal(frames[5].depth_m, frames[0].depth_m)
     assert frames[5].stamp_ns - frames[4].stamp_ns == frames[1].stamp_ns - frames[0].stamp_ns
+    # With a step the next pass goes on by the step too (frames 0, 2, 4, then 6, 8, 10; it went on by 1: 5, 7, 9).
+    src = ReplaySource(real_data / "icl_nuim_living_room", rate="fast", loop=True, start=0, stop=5, step=2)
+    seqs = []
+    for f in src:
+        seqs.append(f.seq)
+        if len(seqs) == 7:
+            src.close()
+    assert seqs == [0, 2, 4, 6, 8, 10, 12]
 
 
 def test_replay_paces_at_recorded_rate(real_data, monkeypatch):
