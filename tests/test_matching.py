@@ -414,7 +414,9 @@ def test_a_trace_explains_the_result_without_changing_it(living_relocalizer):
                      r"hides from its cameras \(needs 0.4\)", lines[2])
     assert m and float(m.group(1)) >= 0.4 and float(m.group(2)) == 0.0, lines[2]
     rows = [ln.split() for ln in lines if ln.endswith("winner (nearest the truth)")]
-    assert len(rows) == 1 and float(rows[0][1]) < 0.05 and int(rows[0][3]) == plain.n_matched
+    # The table counts surfaces, as scene uniqueness does (coplanar map planes as one).
+    assert len(rows) == 1 and float(rows[0][1]) < 0.05 and int(rows[0][3]) == plain.counts["matched_surfaces"]
+    assert 5 <= plain.counts["matched_surfaces"] <= plain.n_matched
     assert lines[-1] == "the true pose: identifiable (the map confirms it as locate would accept it)"
 
 
@@ -1417,3 +1419,52 @@ def test_an_unrefined_mode_at_the_winners_own_place_is_not_a_rival():
     assert res.relocalized, res.reason
     t_err, r_err = pose_error(res.T_map_cam, T)
     assert t_err < 0.25 and r_err < 5.0  # a true pose by the suite's rule (the noise: 3 cm offsets, 2 deg normals)
+
+
+def test_a_door_recessed_behind_its_wall_matches_its_own_map_plane():
+    """A door 6 cm behind its wall, where the map's wall plane also spans the doorway (a corridor's wall fused over
+    its doors): the door's samples lie within the match offset of both map planes and overlap both, a tie that went
+    to whichever the spatial hash listed first, the wall. The refinement then dropped the pair as 6 cm off, and a
+    corridor view lost the planes that held it. Of equal candidates, the plane the door lies on is matched. For scene
+    uniqueness the door is no further surface: counted as one, over 18 saved suites the views the recess let through
+    included two negatives."""
+    from reloc.evaluation.synthetic import Rect, box, room
+
+    rects = room(6.0, 5.0, 2.6)
+    back = next(r for r in rects if r.normal[1] < -0.5)  # the wall y = 5, facing -y, listed before the door
+    others = [r for r in rects if r is not back]
+    furniture = box((1.0, 1.5), (1.0, 0.6, 0.8), yaw_rad=0.4) + box((4.6, 3.2), (0.6, 0.8, 1.1), yaw_rad=-0.3)
+    door = Rect((3.0, 5.06, 1.0), (0, -1, 0), (1, 0, 0), 0.5, 1.0)
+    # What the camera sees: the wall around the doorway, and the door through it.
+    split = [Rect((1.25, 5.0, 1.3), (0, -1, 0), (1, 0, 0), 1.25, 1.3),
+             Rect((4.75, 5.0, 1.3), (0, -1, 0), (1, 0, 0), 1.25, 1.3),
+             Rect((3.0, 5.0, 2.3), (0, -1, 0), (1, 0, 0), 0.5, 0.3)]
+    T = look_at((3.0, 1.0, 1.4), (3.0, 5.0, 1.1))
+    sub = view_planes(others + furniture + split + [door], T)
+    mp = scene_planes(others + furniture + [back, door])
+    i_wall, i_door = len(others) + len(furniture), len(others) + len(furniture) + 1
+    reloc = Relocalizer(mp, MatchingParams())
+    used, order, vs_ptr, vs_pts = reloc.prepare(sub)
+    # The door: the submap plane facing -y with its centroid 6 cm behind the wall.
+    c_world = used.centroids @ T[:3, :3].T + T[:3, 3]
+    n_world = used.normals @ T[:3, :3].T
+    j = int(np.flatnonzero((n_world[:, 1] < -0.99) & (np.abs(c_world[:, 1] - 5.06) < 0.01))[0])
+    v = _verify_at(reloc, used, vs_ptr, vs_pts, T)
+    assert v.passed[0]
+    # Both map planes are candidates: within the match offset, overlapping every sample.
+    assert abs(mp.normals[i_wall] @ c_world[j] + mp.offsets[i_wall]) == pytest.approx(0.06, abs=1e-6)
+    assert v.match[0, j] == i_door and v.proj[0, j] == pytest.approx(1.0) and v.over[0, j] == pytest.approx(1.0)
+    no_door = view_planes(others + furniture + split, T)
+    used2, _, vs_ptr2, vs_pts2 = reloc.prepare(no_door)
+    v2 = _verify_at(reloc, used2, vs_ptr2, vs_pts2, T)
+    assert len(used2) == len(used) - 1 and v.n_matched[0] == v2.n_matched[0] >= 5
+    # The same with the door judged before its wall (the wall's plane, larger than the door's map plane, cannot
+    # match it, but knows it is there).
+    cand = np.array([[j] + [k for k in range(3) if k != j][:2] + [0, 0, 0]], np.int32)
+    v3 = reloc.verify(used, vs_ptr, vs_pts, T[None, :3, :3].copy(), T[None, :3, 3].copy(), cand,
+                      require_triplet=False)
+    assert v3.match[0, j] == i_door and v3.n_matched[0] == v.n_matched[0]
+    res = reloc.locate(sub)
+    assert res.relocalized, res.reason
+    t_err, r_err = pose_error(res.T_map_cam, T)
+    assert t_err < 0.01 and r_err < 0.1

@@ -748,12 +748,15 @@ def verify_transforms(R, t, cand, plane_order, sub_normals, sub_offsets, sub_cen
     moved centroid lies within ``max_offset`` of it. With ``use_overlap`` candidates come from the spatial hash
     (a sample counts toward overlap when it falls near a sample of i: Eq. 11 with the samples standing for the
     plane's extent), otherwise every map plane is looked at. The projection ratio (Eq. 10) is the fraction of
-    samples within ``inlier_m`` of plane i. j matches its best candidate that clears the enabled thresholds and
-    whose area is at least ``min_area_ratio`` times j's (a map plane holds what any view saw of it).
+    samples within ``inlier_m`` of plane i. j matches its best candidate (the highest sum of the enabled ratios; of
+    equal ones, the plane its moved centroid lies nearest) that clears the enabled thresholds and whose area is at
+    least ``min_area_ratio`` times j's (a map plane holds what any view saw of it).
     A hypothesis passes when its three triplet planes match (unless ``require_triplet`` is False: a refined pose is
-    judged on all its planes alike), at least ``min_matched`` distinct map planes match, no plane lies in the map's
-    known free space, and the matched submap planes, with the planes the map knows nothing about, weigh at least
-    ``min_competitor`` of the total: it may be the truth. (Whether it explains enough to be accepted is for the caller
+    judged on all its planes alike), at least ``min_matched`` distinct map surfaces match (a map plane is not
+    another surface when the submap plane matching it had a map plane already matched among its candidates as well:
+    a door a few centimetres behind its wall, a fragment of the same wall), no plane lies in the map's known free space,
+    and the matched submap planes, with the planes the map knows nothing about, weigh at least ``min_competitor`` of
+    the total: it may be the truth. (Whether it explains enough to be accepted is for the caller
     to judge from ``out_nmatched`` and ``out_explained``.) Each plane weighing the square root of its area (its
     extent): large planes count more than clutter, but a floor and a wall cannot hide unexplained furniture. Planes
     smaller than ``min_counted_area`` count only when they match (small planes are mostly facets of curved clutter
@@ -784,6 +787,8 @@ def verify_transforms(R, t, cand, plane_order, sub_normals, sub_offsets, sub_cen
     cand_id = np.empty(MAXC, np.int32)
     cand_over = np.empty(MAXC, np.int32)
     cand_proj = np.empty(MAXC, np.int32)
+    cand_off = np.empty(MAXC, np.float64)
+    cand_ok = np.empty(MAXC, np.bool_)  # large enough to match j (the others only tell which surface j is on)
     matched_ids = np.empty(S, np.int32)
     large_area = 0.0
     for j in range(S):
@@ -841,12 +846,11 @@ def verify_transforms(R, t, cand, plane_order, sub_normals, sub_offsets, sub_cen
                         continue
                     for e in range(hash_ptr[pos], hash_ptr[pos + 1]):
                         i = hash_ids[e]
-                        if map_areas[i] < min_area_ratio * sub_areas[j]:
-                            continue
                         if nx * map_normals[i, 0] + ny * map_normals[i, 1] + nz * map_normals[i, 2] < cos_match:
                             continue
-                        if abs(map_normals[i, 0] * cx + map_normals[i, 1] * cy + map_normals[i, 2] * cz
-                               + map_offsets[i]) > max_offset:
+                        off_c = abs(map_normals[i, 0] * cx + map_normals[i, 1] * cy + map_normals[i, 2] * cz
+                                    + map_offsets[i])
+                        if off_c > max_offset:
                             continue
                         slot = -1
                         for q in range(n_c):
@@ -860,6 +864,8 @@ def verify_transforms(R, t, cand, plane_order, sub_normals, sub_offsets, sub_cen
                             cand_id[slot] = i
                             cand_over[slot] = 0
                             cand_proj[slot] = 0
+                            cand_off[slot] = off_c
+                            cand_ok[slot] = map_areas[i] >= min_area_ratio * sub_areas[j]
                             n_c += 1
                         cand_over[slot] += 1
                         if abs(map_normals[i, 0] * px + map_normals[i, 1] * py + map_normals[i, 2] * pz
@@ -867,19 +873,20 @@ def verify_transforms(R, t, cand, plane_order, sub_normals, sub_offsets, sub_cen
                             cand_proj[slot] += 1
             else:
                 for i in range(N):
-                    if map_areas[i] < min_area_ratio * sub_areas[j]:
-                        continue
                     if nx * map_normals[i, 0] + ny * map_normals[i, 1] + nz * map_normals[i, 2] < cos_match:
                         continue
-                    if abs(map_normals[i, 0] * cx + map_normals[i, 1] * cy + map_normals[i, 2] * cz
-                           + map_offsets[i]) > max_offset:
+                    off_c = abs(map_normals[i, 0] * cx + map_normals[i, 1] * cy + map_normals[i, 2] * cz
+                                + map_offsets[i])
+                    if off_c > max_offset:
                         continue
                     if n_c == MAXC:
                         break
                     cand_id[n_c] = i
+                    cand_off[n_c] = off_c
+                    cand_ok[n_c] = map_areas[i] >= min_area_ratio * sub_areas[j]
                     cand_over[n_c] = m_j
                     cnt = 0
-                    if use_projection:
+                    if use_projection and cand_ok[n_c]:
                         for s in range(s0, s1):
                             p = vs_points[s]
                             px = R[h, 0, 0] * p[0] + R[h, 0, 1] * p[1] + R[h, 0, 2] * p[2] + t[h, 0]
@@ -896,6 +903,8 @@ def verify_transforms(R, t, cand, plane_order, sub_normals, sub_offsets, sub_cen
             best_o = 0.0
             inv_m = 1.0 / m_j if m_j > 0 else 0.0
             for q in range(n_c):
+                if not cand_ok[q]:
+                    continue
                 rp = cand_proj[q] * inv_m
                 ro = cand_over[q] * inv_m
                 if use_projection and rp < min_projection:
@@ -903,19 +912,25 @@ def verify_transforms(R, t, cand, plane_order, sub_normals, sub_offsets, sub_cen
                 if use_overlap and ro < min_overlap:
                     continue
                 score = (rp if use_projection else 0.0) + (ro if use_overlap else 0.0)
-                if score > best_score:
+                # Equal scores (a door recessed a few cm behind its wall, both holding every sample): the map plane
+                # its centroid lies on, not whichever the hash listed first.
+                if score > best_score or (score == best_score and cand_off[q] < cand_off[best]):
                     best_score = score
                     best = q
                     best_p = rp
                     best_o = ro
-            if best < 0 and use_overlap and n_c > 1:
-                # A map surface stored as several coplanar fragments (seen in pieces, never joined): the plane's
-                # extent is their union. Judge the strongest candidate against the union of the candidates
-                # coplanar with it.
-                top = 0
-                for q in range(1, n_c):
-                    if cand_over[q] + cand_proj[q] > cand_over[top] + cand_proj[top]:
-                        top = q
+            # A map surface stored as several coplanar fragments (seen in pieces, never joined): the plane's extent
+            # is their union. With two candidates or more and none matched, judge the strongest against the union
+            # of the map planes coplanar with it.
+            top = -1
+            n_ok = 0
+            if best < 0 and use_overlap:
+                for q in range(n_c):
+                    if cand_ok[q]:
+                        n_ok += 1
+                        if top < 0 or cand_over[q] + cand_proj[q] > cand_over[top] + cand_proj[top]:
+                            top = q
+            if n_ok > 1:
                 it = cand_id[top]
                 u_over = 0
                 u_proj = 0
@@ -957,10 +972,20 @@ def verify_transforms(R, t, cand, plane_order, sub_normals, sub_offsets, sub_cen
                 out_state[h, j] = 0
                 out_proj[h, j] = best_p if use_projection else 1.0
                 out_over[h, j] = best_o if use_overlap else 1.0
+                # Scene uniqueness counts surfaces: a map plane is not another one when this plane was also a
+                # candidate of a map plane already matched (a door recessed in its wall, with the wall around it; a
+                # fragment of the same wall).
                 seen = False
                 for q in range(n_matched):
-                    if matched_ids[q] == i:
+                    k = matched_ids[q]
+                    if k == i:
                         seen = True
+                        break
+                    for q2 in range(n_c):
+                        if cand_id[q2] == k:
+                            seen = True
+                            break
+                    if seen:
                         break
                 if not seen:
                     matched_ids[n_matched] = i

@@ -79,7 +79,10 @@ class RelocResult:
     - ``explained_fraction``: the share of the submap the matched planes explain, each plane weighing the square
       root of its area (planes under ``min_counted_area_m2`` count only when matched).
     - ``counts``: submap planes, planes used, rounds, submap triplets, map triplets looked at (``generated``),
-      candidates after selection, degenerate transforms, hypotheses verified, verified hypotheses that passed.
+      candidates after selection, degenerate transforms, hypotheses verified, verified hypotheses that passed; when
+      relocalized, ``matched_surfaces``: the matched map planes as scene uniqueness counts them (a map plane
+      parallel to one already counted and within the match offset of the submap plane, such as a door recessed a
+      few centimetres in its wall, is not another surface), at most ``n_matched``.
     - ``timings_ms``: per stage (:data:`STAGES`), the parts of ``decide`` (:data:`SUBSTAGES`) and ``total``.
     """
 
@@ -130,7 +133,8 @@ class Verification:
     count, 5 near a map surface but neither matched nor in conflict: only with a conflict offset above the match
     offset, as in the decision over refined poses; 6 hidden behind a map surface from the submap's cameras, set by
     :meth:`Relocalizer.mark_hidden` in the decision over refined poses), ``free_frac`` (the fraction of an unmatched
-    plane's samples in the map's known free space). Per hypothesis: ``n_matched`` distinct map planes, ``explained``
+    plane's samples in the map's known free space). Per hypothesis: ``n_matched`` matched surfaces (distinct map
+    planes, coplanar ones as one: :func:`~reloc.matching._kernels.verify_transforms`), ``explained``
     and ``unknown`` fractions, ``free`` planes in free space, ``passed``. ``evaluated``: (hypothesis, plane) pairs
     looked at.
     """
@@ -799,6 +803,7 @@ class Relocalizer:
                                  f"direction{less} (needs {p.min_direction_support_m2})", counts, timings)
         js = np.flatnonzero(match_row >= 0)
         matched = np.stack([order[js], match_row[js].astype(np.int64)], axis=1)
+        counts["matched_surfaces"] = int(v.n_matched[0])
         return RelocResult(RELOCALIZED, "", T, decision.score, ratio(decision.score, decision.runner_up_score),
                            matched, explained, counts, timings)
 
