@@ -1426,8 +1426,7 @@ def test_a_door_recessed_behind_its_wall_matches_its_own_map_plane():
     its doors): the door's samples lie within the match offset of both map planes and overlap both, a tie that went
     to whichever the spatial hash listed first, the wall. The refinement then dropped the pair as 6 cm off, and a
     corridor view lost the planes that held it. Of equal candidates, the plane the door lies on is matched. For scene
-    uniqueness the door is no further surface: counted as one, over 18 saved suites the views the recess let through
-    included two negatives."""
+    uniqueness the door is no further surface (counted as one more, it let two negatives through in 18 saved suites)."""
     from reloc.evaluation.synthetic import Rect, box, room
 
     rects = room(6.0, 5.0, 2.6)

@@ -756,8 +756,8 @@ def verify_transforms(R, t, cand, plane_order, sub_normals, sub_offsets, sub_cen
     another surface when the submap plane matching it had a map plane already matched among its candidates as well:
     a door a few centimetres behind its wall, a fragment of the same wall), no plane lies in the map's known free space,
     and the matched submap planes, with the planes the map knows nothing about, weigh at least ``min_competitor`` of
-    the total: it may be the truth. (Whether it explains enough to be accepted is for the caller
-    to judge from ``out_nmatched`` and ``out_explained``.) Each plane weighing the square root of its area (its
+    the total: it may be the truth. (Whether it explains enough to be accepted is for the caller to judge from
+    ``out_nmatched`` and ``out_explained``.) Each plane weighing the square root of its area (its
     extent): large planes count more than clutter, but a floor and a wall cannot hide unexplained furniture. Planes
     smaller than ``min_counted_area`` count only when they match (small planes are mostly facets of curved clutter
     that no map holds). With ``free_slots`` (a :func:`key_table` of the voxel keys of the map's known free space, edge
@@ -972,8 +972,8 @@ def verify_transforms(R, t, cand, plane_order, sub_normals, sub_offsets, sub_cen
                 out_state[h, j] = 0
                 out_proj[h, j] = best_p if use_projection else 1.0
                 out_over[h, j] = best_o if use_overlap else 1.0
-                # Scene uniqueness counts surfaces: a map plane is not another one when this plane was also a
-                # candidate of a map plane already matched (a door recessed in its wall, with the wall around it; a
+                # Scene uniqueness counts surfaces: map plane i is not another one when a map plane already matched
+                # was among this plane's candidates too (a door recessed in its wall, with the wall around it; a
                 # fragment of the same wall).
                 seen = False
                 for q in range(n_matched):

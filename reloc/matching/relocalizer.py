@@ -80,9 +80,9 @@ class RelocResult:
       root of its area (planes under ``min_counted_area_m2`` count only when matched).
     - ``counts``: submap planes, planes used, rounds, submap triplets, map triplets looked at (``generated``),
       candidates after selection, degenerate transforms, hypotheses verified, verified hypotheses that passed; when
-      relocalized, ``matched_surfaces``: the matched map planes as scene uniqueness counts them (a map plane
-      parallel to one already counted and within the match offset of the submap plane, such as a door recessed a
-      few centimetres in its wall, is not another surface), at most ``n_matched``.
+      relocalized, ``matched_surfaces``: the matched map planes as scene uniqueness counts them (a matched map
+      plane adds none when the submap plane matching it also had an already matched map plane among its candidates:
+      a door recessed a few centimetres in its wall, with the wall around it), at most ``n_matched``.
     - ``timings_ms``: per stage (:data:`STAGES`), the parts of ``decide`` (:data:`SUBSTAGES`) and ``total``.
     """
 
@@ -134,7 +134,7 @@ class Verification:
     offset, as in the decision over refined poses; 6 hidden behind a map surface from the submap's cameras, set by
     :meth:`Relocalizer.mark_hidden` in the decision over refined poses), ``free_frac`` (the fraction of an unmatched
     plane's samples in the map's known free space). Per hypothesis: ``n_matched`` matched surfaces (distinct map
-    planes, coplanar ones as one: :func:`~reloc.matching._kernels.verify_transforms`), ``explained``
+    planes, overlapping near-coplanar ones as one: :func:`~reloc.matching._kernels.verify_transforms`), ``explained``
     and ``unknown`` fractions, ``free`` planes in free space, ``passed``. ``evaluated``: (hypothesis, plane) pairs
     looked at.
     """
