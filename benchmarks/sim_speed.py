@@ -23,8 +23,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _common import results_name, write_results  # noqa: E402
 
 from reloc._numba import warm_up  # noqa: E402
-from sim import KERNEL_MODULES as SIM_KERNELS  # noqa: E402
-from sim import make_camera  # noqa: E402
+from sim import KERNEL_MODULES as SIM_KERNELS, make_camera  # noqa: E402
 from sim.cameras import PRESETS, preset  # noqa: E402
 from sim.noise import NOISE_NAMES, make_noise  # noqa: E402
 from sim.reference import reference_render  # noqa: E402

@@ -111,8 +111,7 @@ def refine_voxel_planes(
     moments, ``n_eff`` and ``radius``. Voxels with more than ``voxel_fit_max_points`` points are refit from an even
     subsample of them (weights scaled up to stand for all). With the robust weight the planarity test is made
     again on the inliers (same thresholds as :func:`fit_voxel_planes`, plus ``min_inlier_fraction`` of Tukey
-    weight), so voxels
-    with a little of another surface count as planar.
+    weight), so voxels with a little of another surface count as planar.
     """
     if noise_direction not in ("ray", "normal"):
         raise ValueError(f"noise_direction: expected 'ray' or 'normal', got {noise_direction!r}")

@@ -867,6 +867,8 @@ def verify_transforms(R, t, cand, plane_order, sub_normals, sub_offsets, sub_cen
                             cand_off[slot] = off_c
                             cand_ok[slot] = map_areas[i] >= min_area_ratio * sub_areas[j]
                             n_c += 1
+                        if not cand_ok[slot]:  # known to be there; its ratios are never read
+                            continue
                         cand_over[slot] += 1
                         if abs(map_normals[i, 0] * px + map_normals[i, 1] * py + map_normals[i, 2] * pz
                                + map_offsets[i]) <= inlier_m:
