@@ -118,13 +118,52 @@ def angle_window_ok(angle_deg: float, lo_deg: float, hi_deg: float) -> bool:
     return lo_deg <= angle_deg <= hi_deg and math.isfinite(angle_deg)
 
 
+# Directions whose stiffness (``e^T M e``) is at most this many times the least count as weak. Two perpendicular
+# walls of equal area make every direction between them equally stiff: the eigenvector is then an accident of
+# rounding, and half-way between the walls both of them support it.
+_WEAK_STIFFNESS_RATIO = 2.0
+
+
+def _half_sphere(m: int) -> np.ndarray:
+    """(m, 3) unit vectors spread evenly over the half sphere z >= 0 (a Fibonacci lattice)."""
+    i = np.arange(m) + 0.5
+    z = i / m
+    phi = i * (math.pi * (3.0 - math.sqrt(5.0)))
+    r = np.sqrt(1.0 - z * z)
+    return np.stack([r * np.cos(phi), r * np.sin(phi), z], axis=1)
+
+
+_SPHERE = _half_sphere(2000)
+_CIRCLE = np.radians(np.arange(0.0, 180.0, 1.0))
+
+
 def weakest_direction_support(normals: np.ndarray, areas: np.ndarray) -> tuple[np.ndarray, float]:
     """The direction along which planes (unit ``normals`` (N, 3), ``areas`` (N,) in m^2, N >= 1) pin a translation
     least, and the area that pins it there.
 
-    The direction is the eigenvector of ``sum a n n^T`` with the smallest eigenvalue, as in ICP degeneracy analysis;
-    a plane supports it when its normal is within 60 degrees of it. A corridor view (floor, ceiling, two walls and
-    one door jamb) is pinned along the corridor by the jamb alone. Returns ``(direction (3,), area)``.
+    A plane supports a direction when its normal is within 60 degrees of it. The weak direction is the eigenvector
+    of ``M = sum a n n^T`` with the smallest eigenvalue, as in ICP degeneracy analysis. When other eigenvalues are
+    at most ``_WEAK_STIFFNESS_RATIO`` times the smallest, that eigenvector is an accident of rounding: every
+    direction of their eigenvectors' span at most as many times as stiff (``e^T M e``; sampled every degree in a
+    plane, on 2,000 directions in space) is weak, and the one with the least support is returned. A corridor view
+    (floor, ceiling, two walls and one door jamb) is pinned along the corridor by the jamb alone; a room corner
+    with two walls of equal area is pinned along either wall's normal by that wall alone, not by both, as the
+    direction half-way between them would say. Returns ``(direction (3,), area)``.
     """
-    e = np.linalg.eigh((normals * areas[:, None]).T @ normals)[1][:, 0]
-    return e, float(areas[np.abs(normals @ e) >= 0.5].sum())
+    normals = np.asarray(normals, dtype=np.float64)
+    areas = np.asarray(areas, dtype=np.float64)
+    M = (normals * areas[:, None]).T @ normals
+    w, V = np.linalg.eigh(M)
+    limit = _WEAK_STIFFNESS_RATIO * max(float(w[0]), 0.0) + 1e-12 * max(float(w[-1]), 0.0)
+    k = int(np.sum(w <= limit))
+    if k <= 1:
+        e = V[:, 0]
+        return e, float(areas[np.abs(normals @ e) >= 0.5].sum())
+    if k == 2:
+        D = np.cos(_CIRCLE)[:, None] * V[:, 0] + np.sin(_CIRCLE)[:, None] * V[:, 1]
+    else:
+        D = np.concatenate([V.T, _SPHERE])
+    D = D[((D @ M) * D).sum(axis=1) <= limit]  # the first row, an eigenvector of w[0], always stays
+    support = (np.abs(D @ normals.T) >= 0.5) @ areas
+    b = int(np.argmin(support))
+    return D[b], float(support[b])

@@ -79,3 +79,47 @@ def test_check_normals_messages():
         pl.check_normals(np.zeros(3))
     with pytest.raises(ValueError, match="row 1 has norm 2"):
         pl.check_normals(np.array([[1.0, 0, 0], [0, 2.0, 0]]))
+
+
+def _rotated(normals, seed):
+    R = tf.rotation_from_axis_angle(np.random.default_rng(seed).normal(size=3))
+    return np.asarray(normals, dtype=np.float64) @ R.T
+
+
+@pytest.mark.parametrize("seed", range(8))
+def test_weakest_direction_of_a_corner_is_held_by_one_wall(seed):
+    # Floor 6 m^2, two perpendicular walls of 2 m^2 and a 0.1 m^2 face at 45 degrees between them, turned at
+    # random. Along either wall's normal only that wall pins the translation (the face is within 60 degrees of
+    # both normals, but not of directions 15-30 degrees past them). The eigenvector of the smallest eigenvalue
+    # lies half-way between the walls, where both of them count (4 m^2).
+    s = 2**-0.5
+    normals = _rotated([[1, 0, 0], [0, 1, 0], [0, 0, 1], [s, s, 0]], seed)
+    areas = np.array([2.0, 2.0, 6.0, 0.1])
+    e, support = pl.weakest_direction_support(normals, areas)
+    assert support == pytest.approx(2.0, abs=1e-9)
+    assert abs(np.linalg.norm(e) - 1.0) < 1e-9
+    held = np.abs(normals @ e) >= 0.5
+    assert held.tolist() in ([True, False, False, False], [False, True, False, False])
+
+
+@pytest.mark.parametrize("seed", range(8))
+def test_weakest_direction_of_two_equal_walls_whatever_their_turn(seed):
+    # Exactly equal walls: every direction between them is as stiff, so the eigenvector is whatever rounding
+    # gives; the support must not depend on it.
+    normals = _rotated([[1, 0, 0], [0, 1, 0], [0, 0, 1]], seed)
+    assert pl.weakest_direction_support(normals, np.array([1.5, 1.5, 8.0]))[1] == pytest.approx(1.5, abs=1e-9)
+
+
+def test_weakest_direction_of_a_corridor_is_its_door_jamb():
+    # Floor, ceiling, two walls of 5 m^2 and a door jamb of 0.3 m^2 across the corridor (x): pinned by the jamb.
+    normals = np.array([[1, 0, 0], [0, 1, 0], [0, -1, 0], [0, 0, 1], [0, 0, -1]], dtype=np.float64)
+    e, support = pl.weakest_direction_support(normals, np.array([0.3, 5, 5, 5, 5]))
+    assert support == pytest.approx(0.3)
+    assert abs(e[0]) == pytest.approx(1.0)
+
+
+def test_weakest_direction_of_unequal_walls_is_the_smaller_walls_normal():
+    # Walls of 1 and 3 m^2 (more than twice as stiff): the eigenvector, the smaller wall's normal, alone is weak.
+    e, support = pl.weakest_direction_support(np.eye(3), np.array([1.0, 3.0, 9.0]))
+    assert support == pytest.approx(1.0)
+    assert abs(e[0]) == pytest.approx(1.0)
