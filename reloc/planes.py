@@ -143,9 +143,10 @@ def weakest_direction_support(normals: np.ndarray, areas: np.ndarray) -> tuple[n
 
     A plane supports a direction when its normal is within 60 degrees of it. The weak direction is the eigenvector
     of ``M = sum a n n^T`` with the smallest eigenvalue, as in ICP degeneracy analysis. When other eigenvalues are
-    at most ``_WEAK_STIFFNESS_RATIO`` times the smallest, that eigenvector is an accident of rounding: every
-    direction of their eigenvectors' span at most as many times as stiff (``e^T M e``; sampled every degree in a
-    plane, on 2,000 directions in space) is weak, and the one with the least support is returned. A corridor view
+    at most ``_WEAK_STIFFNESS_RATIO`` times the smallest, the translation is about as weak along their eigenvectors
+    (for equal eigenvalues the one first is an accident of rounding): every direction of their span at most that
+    many times as stiff as the least (``e^T M e``; sampled every degree in a plane, on 2,000 directions in space)
+    is weak, and the one with the least support is returned. A corridor view
     (floor, ceiling, two walls and one door jamb) is pinned along the corridor by the jamb alone; a room corner
     with two walls of equal area is pinned along either wall's normal by that wall alone, not by both, as the
     direction half-way between them would say. Returns ``(direction (3,), area)``.
