@@ -922,8 +922,8 @@ def verify_transforms(R, t, cand, plane_order, sub_normals, sub_offsets, sub_cen
                     best_p = rp
                     best_o = ro
             # A map surface stored as several coplanar fragments (seen in pieces, never joined): the plane's extent
-            # is their union. With two candidates or more and none matched, judge the strongest against the union
-            # of the map planes coplanar with it.
+            # is their union. With none matched and two candidates or more large enough to match j, judge the
+            # strongest of those against the union of the map planes coplanar with it.
             top = -1
             n_ok = 0
             if best < 0 and use_overlap:
