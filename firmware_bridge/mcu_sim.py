@@ -581,6 +581,8 @@ class PoseCheck:
     # False for a pose sent before the host's clock was synced (no STAMP_MCU_CLOCK flag): it is judged at its
     # arrival time, so its error includes the robot's motion during the pose's latency, not only the host's error.
     stamped: bool = True
+    # sqrt of the trace of the pose covariance's translation block (m); NaN when the host sent none (all zeros).
+    position_sigma_m: float = math.nan
 
 
 class McuSimulator:
@@ -991,4 +993,7 @@ class McuSimulator:
         yaw_err = math.degrees(abs(math.remainder(math.atan2(T[1, 0], T[0, 0]) - yaw, 2 * math.pi)))
         ok = pos_err <= self.pose_tolerance_m and yaw_err <= self.pose_tolerance_deg
         self.counters["poses_ok" if ok else "poses_bad"] += 1
-        self.pose_checks.append(PoseCheck(pose.request_id, pose.status, stamp, pos_err, yaw_err, ok, latency, stamped))
+        cov = pose.covariance_matrix()
+        sigma = math.sqrt(max(float(np.trace(cov[:3, :3])), 0.0)) if np.any(cov) else math.nan
+        self.pose_checks.append(PoseCheck(pose.request_id, pose.status, stamp, pos_err, yaw_err, ok, latency, stamped,
+                                          sigma))

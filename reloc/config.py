@@ -442,6 +442,12 @@ class EvaluationConfig(_Section):
         "match_max_angle_deg rejects look-alikes, but also true poses from noisy sensors)...",
     )
     final_max_offset_m: float = Field(0.08, gt=0, description="...and this offset.")
+    covariance_inflation: float = Field(
+        4.0, gt=0,
+        description="A relocalized pose's covariance (from its matched planes, scaled by their residuals) is "
+        "multiplied by this, so that the simulated suite's pose errors follow it (docs/BENCHMARKS.md, 'A covariance "
+        "for the relocalized pose').",
+    )
     min_competitor_fraction: float = Field(
         0.6, ge=0, le=1,
         description="Poses explaining at least this fraction compete in the decision (ambiguity test) even though only "

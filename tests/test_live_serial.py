@@ -6,6 +6,7 @@ against its ground truth. Also the `reloc run --serial` command against the simu
 from __future__ import annotations
 
 import json
+import math
 import threading
 import time
 
@@ -114,6 +115,10 @@ def test_loop_relocalizes_end_to_end_with_the_simulated_firmware(tmp_path, livin
     assert all(c.position_error_m < 0.3 for c in early), early
     assert checks and all(c.ok for c in checks), checks
     assert all(c.position_error_m < 0.1 and c.yaw_error_deg < 2.0 for c in checks)
+    # Each relocalized pose came with its covariance (a spread of millimetres to a few centimetres), the tracked ones
+    # without (all zeros: unknown).
+    assert all(0.0005 < c.position_sigma_m < 0.1 for c in checks + early), [c.position_sigma_m for c in checks]
+    assert all(math.isnan(c.position_sigma_m) for c in mcu.pose_checks if c.status == PoseStatus.TRACKED)
     # The loop's own record agrees with the camera's truth.
     for r in summary.relocalizations:
         if r.ok:

@@ -647,10 +647,12 @@ class LiveLoop:
             res = self.relocalizer.locate(job.submap)
             status, reason = str(res.status), str(getattr(res, "reason", ""))
             T = None if res.T_map_cam is None else np.asarray(res.T_map_cam, dtype=np.float64)
+            cov = getattr(res, "covariance", None)
             score = float(getattr(res, "score", float("nan")))
             timings = {k: v for k, v in (getattr(res, "timings_ms", None) or {}).items() if k != "total"}
         except Exception as exc:  # noqa: BLE001 - a failing query is a rejection with a reason
             status, reason, T, score, timings = "error", f"{type(exc).__name__}: {exc}", None, float("nan"), {}
+            cov = None
             self.last_error = f"relocalization: {exc!r}"
         t1 = time.perf_counter_ns()
         prof.record("reloc", t0, t1 - t0)
@@ -687,7 +689,7 @@ class LiveLoop:
         if self.bridge is not None:
             stamp = job.stamp_ns if self._host_clock(job.stamp_ns, job.t_cap_ns) else job.t_cap_ns
             for rid in job.request_ids or (0,):
-                self._post(("reloc", T if ok else None, stamp, score, rid, reason))
+                self._post(("reloc", T if ok else None, stamp, score, rid, reason, cov if ok else None))
 
     # -- serial ------------------------------------------------------------------------------------------------
     def _post(self, item) -> None:
@@ -718,7 +720,7 @@ class LiveLoop:
                         if not self._frames_usable():
                             # No usable frames (camera starting, lost, stalled, or only bad frames): say so now, do
                             # not make the firmware wait.
-                            self._post(("reloc", None, self.clock_ns(), 0.0, ev.request_id, _NO_FRAMES))
+                            self._post(("reloc", None, self.clock_ns(), 0.0, ev.request_id, _NO_FRAMES, None))
                         else:
                             self.request_relocalization("request", ev.request_id)
                     elif isinstance(ev, BridgeEvent):
@@ -733,7 +735,7 @@ class LiveLoop:
                 if not self._frames_usable():
                     # Requests taken while frames were usable wait for the next usable frame; none came since.
                     for rid in self._take_firmware_requests():
-                        self._post(("reloc", None, self.clock_ns(), 0.0, rid, _NO_FRAMES))
+                        self._post(("reloc", None, self.clock_ns(), 0.0, rid, _NO_FRAMES, None))
                 while True:
                     try:
                         item = self._outbox.get_nowait()
@@ -746,11 +748,14 @@ class LiveLoop:
                             bridge.send_pose(T_map_base, stamp, status=PoseStatus.TRACKED, score=score,
                                              request_id=rid)
                         else:
-                            _, T_map_cam, stamp, score, rid, reason = item
+                            _, T_map_cam, stamp, score, rid, reason, cov = item
                             if T_map_cam is not None:
+                                # The covariance is of the left perturbation in the map frame: the same for the
+                                # base as for the camera (T_map_base = T_map_cam T_cam_base).
                                 last_T_map_base = T_map_cam @ self.T_cam_base
                                 bridge.send_pose(last_T_map_base, stamp, status=PoseStatus.OK,
-                                                 score=score if math.isfinite(score) else 0.0, request_id=rid)
+                                                 score=score if math.isfinite(score) else 0.0, request_id=rid,
+                                                 covariance=cov)
                             elif rid:
                                 # An answer is owed: a rejection with its reason (the pose field holds the last one).
                                 bridge.send_pose(last_T_map_base, stamp, status=_reject_status(reason, PoseStatus),

@@ -14,7 +14,8 @@ from reloc._params import with_changes
 __all__ = ["MatchingParams", "ABLATIONS", "ablation_params", "scaled_to_sensor", "sensor_sigma_m"]
 
 # Fields the stages divide by: zero is refused by name (a ZeroDivisionError deep in a query otherwise).
-_DIVISORS = ("kde_sigma_translation_m", "kde_sigma_rotation_rad", "extent_cell_m", "evidence_area_m2")
+_DIVISORS = ("kde_sigma_translation_m", "kde_sigma_rotation_rad", "extent_cell_m", "evidence_area_m2",
+             "covariance_inflation")
 
 
 @dataclass(frozen=True)
@@ -107,6 +108,7 @@ class MatchingParams:
     refine_fallback_max_angle_rad: float = math.radians(3.0)
     final_max_angle_rad: float = math.radians(5.0)
     final_max_offset_m: float = 0.08
+    covariance_inflation: float = 4.0
 
     def __post_init__(self) -> None:
         problems = []
@@ -254,6 +256,7 @@ class MatchingParams:
             refine_fallback_max_angle_rad=r(e.refine_fallback_max_angle_deg),
             final_max_angle_rad=r(e.final_max_angle_deg),
             final_max_offset_m=e.final_max_offset_m,
+            covariance_inflation=e.covariance_inflation,
         )
         return scaled_to_sensor(params, cfg.extraction.noise_model, cfg.extraction.noise_coeff)
 

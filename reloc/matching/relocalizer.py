@@ -24,6 +24,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from reloc.matching import _kernels as K
+from reloc.matching.covariance import pose_covariance
 from reloc.matching.index import SURFACE_CELL_M, MapIndex, build_index, horizontal_facing, with_dense_extents
 from reloc.matching.params import MatchingParams
 from reloc.matching.scoring import (
@@ -84,6 +85,9 @@ class RelocResult:
       plane adds none when the submap plane matching it also had an already matched map plane among its candidates:
       a door recessed a few centimetres in its wall, with the wall around it), at most ``n_matched``.
     - ``timings_ms``: per stage (:data:`STAGES`), the parts of ``decide`` (:data:`SUBSTAGES`) and ``total``.
+    - ``covariance``: (6, 6) covariance of the left perturbation ``(rho, phi)`` of ``T_map_cam`` in the map frame,
+      translation first (m^2, rad^2; :func:`reloc.matching.covariance.pose_covariance` over the matched planes), or
+      None when rejected.
     """
 
     status: str
@@ -95,6 +99,7 @@ class RelocResult:
     explained_fraction: float
     counts: dict = field(default_factory=dict)
     timings_ms: dict = field(default_factory=dict)
+    covariance: np.ndarray | None = None
 
     @property
     def relocalized(self) -> bool:
@@ -117,6 +122,8 @@ class RelocResult:
             "explained_fraction": round(float(self.explained_fraction), 4),
             "counts": dict(self.counts),
             "timings_ms": {k: round(float(v), 4) for k, v in self.timings_ms.items()},
+            "covariance": None if self.covariance is None else [[float(f"{x:.6g}") for x in row]
+                                                                 for row in self.covariance],
         }
 
 
@@ -804,8 +811,14 @@ class Relocalizer:
         js = np.flatnonzero(match_row >= 0)
         matched = np.stack([order[js], match_row[js].astype(np.int64)], axis=1)
         counts["matched_surfaces"] = int(v.n_matched[0])
+        t1 = time.perf_counter()
+        ids = match_row[js]
+        cov, _ = pose_covariance(T, used.normals[js], used.centroids[js], used.covariances[js],
+                                 self.planes.normals[ids], self.planes.offsets[ids], self.planes.covariances[ids],
+                                 p.covariance_inflation)
+        timings["refine"] += (time.perf_counter() - t1) * 1e3
         return RelocResult(RELOCALIZED, "", T, decision.score, ratio(decision.score, decision.runner_up_score),
-                           matched, explained, counts, timings)
+                           matched, explained, counts, timings, cov)
 
     def direction_support(self, used: PlaneSet, vs_ptr, vs_pts, T: np.ndarray,
                           v: Verification) -> tuple[float, float]:
