@@ -75,8 +75,12 @@ def test_locate_writes_one_line_per_query(office_sequence, tmp_path):
             # Same sequence for map and queries: the map frame is the sequence's world frame.
             t_err, r_err = pose_error(np.array(x["T_map_cam"]), seq.T_world_cam[x["frame"]])
             assert t_err < 0.1 and r_err < 1.0
+            # With its covariance: symmetric, positive, a translation spread under the 0.1 m the answers keep to.
+            cov = np.array(x["covariance"])
+            assert cov.shape == (6, 6) and np.allclose(cov, cov.T) and np.linalg.eigvalsh(cov)[0] > 0
+            assert np.trace(cov[:3, :3]) < 0.1**2
         else:
-            assert x["T_map_cam"] is None and x["reason"]
+            assert x["T_map_cam"] is None and x["covariance"] is None and x["reason"]
     assert sum(x["status"] == "relocalized" for x in lines) >= 2
 
 

@@ -39,7 +39,8 @@ def locate(seq, map_path, out_path, frames_spec, window, max_window, stride, eve
     sequence's poses as odometry (only relative poses are used; frames without a pose restart the window; frames
     whose planes disagree with the query frame's are left out), grown back in time up to --max-window frames while
     it cannot pin a pose (too few planes, or too little area along its weakest direction). A line holds the frame
-    index, stamp_ns, status, reason, T_map_cam (4x4 nested list, or null), score, the matched plane count, the
+    index, stamp_ns, status, reason, T_map_cam (4x4 nested list, or null), its covariance (6x6: the left
+    perturbation in the map frame, translation first, m^2 and rad^2; or null), score, the matched plane count, the
     window's frame count and how many of them the odometry check left out, the counts of every stage and the
     milliseconds of every stage (extraction and submap building included).
     A frame that cannot be read or processed gets a line with status "error"; the others go on.
@@ -134,8 +135,8 @@ def locate(seq, map_path, out_path, frames_spec, window, max_window, stride, eve
             res = reloc.locate(submap, trace=trace)
             d = res.to_dict()
             record.update(
-                status=d["status"], reason=d["reason"], T_map_cam=d["T_map_cam"], score=d["score"],
-                ambiguity_ratio=d["ambiguity_ratio"], matched_planes=d["matched_planes"],
+                status=d["status"], reason=d["reason"], T_map_cam=d["T_map_cam"], covariance=d["covariance"],
+                score=d["score"], ambiguity_ratio=d["ambiguity_ratio"], matched_planes=d["matched_planes"],
                 window_frames=used, frames_left_out=fusion.get("frames_left_out", 0), counts=d["counts"],
                 timings_ms={"extraction": round(float(newest[2]), 4), "submap": round(submap_ms, 4),
                             **d["timings_ms"]},
@@ -151,7 +152,8 @@ def locate(seq, map_path, out_path, frames_spec, window, max_window, stride, eve
                                 + explain_result(reloc, submap, res, trace, truth, identified=known))
             counts[res.status] += 1
         except (ValueError, OSError) as exc:
-            record.update(status="error", reason=str(exc), T_map_cam=None, score=None, matched_planes=0)
+            record.update(status="error", reason=str(exc), T_map_cam=None, covariance=None, score=None,
+                          matched_planes=0)
             counts["error"] += 1
         lines.append(json.dumps(record))
     atomic_write_text(out_path, "\n".join(lines) + ("\n" if lines else ""))

@@ -11,11 +11,12 @@ then gives three residuals, linear in ``delta``:
 Their noise is the plane fits' covariances (submap and map, carried to these residuals). The information
 ``H = sum J^T N^-1 J`` then gives ``H^-1``, which assumes the fits' covariances are right and the pairs independent.
 Neither holds: the fits' covariances are about 1.4x too small in sigma, and map planes carry biases of centimetres (a
-wall fused with the door in its niche). So the covariance is scaled by the a-posteriori variance factor of the pairs
-themselves, ``s0^2 = sum r^T N^-1 r / (3 M - 6)`` over the M pairs' residuals ``r`` at the estimate (at least 1),
-and by ``inflation`` (4 by default), set so that the pose errors of the simulated suite follow the covariance: the
-normalized squared error ``delta^T cov^-1 delta`` has the mean of a chi-square of 6 degrees of freedom (6), docs/
-BENCHMARKS.md, "A covariance for the relocalized pose".
+wall fused with the door in its niche). So each pair whose squared residual ``r^T N^-1 r`` at the estimate exceeds 4
+times the median pair's has its noise scaled up to make it 4 times (a biased plane weighs little more than a typical
+one); the covariance is scaled by the a-posteriori variance factor of the pairs so weighed, ``s0^2 = sum r^T N^-1 r /
+(3 M - 6)`` (at least 1), and by ``inflation`` (4 by default), set so that the pose errors of the simulated suite
+follow the covariance: the normalized squared error ``delta^T cov^-1 delta`` has about the mean of a chi-square of 6
+degrees of freedom (6), docs/BENCHMARKS.md, "A covariance for the relocalized pose".
 """
 
 from __future__ import annotations
@@ -29,14 +30,25 @@ __all__ = ["pose_covariance"]
 # Added to the fits' variances so that exact planes (ground truth, zero covariance) still give a solvable system:
 # (1 micro-radian)^2 and (1 micrometre)^2, far below any measured plane's.
 _TINY_VAR = 1e-12
+# A pair whose squared residual exceeds this many times the median pair's weighs as if it were just this many times
+# (of pairs with Gaussian noise, 2.3 % exceed it: 4 x 2.37, the median of a chi-square of 3 degrees of freedom, is its
+# 97.7th percentile).
+_OUTLIER_FACTOR = 4.0
+
+
+def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Row-wise ``a x b`` of (M, 3) arrays (np.cross costs more than the rest of a call here)."""
+    return np.stack([a[:, 1] * b[:, 2] - a[:, 2] * b[:, 1], a[:, 2] * b[:, 0] - a[:, 0] * b[:, 2],
+                     a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]], axis=1)
 
 
 def _tangent_bases(n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Two unit vectors (M, 3) each, perpendicular to the unit normals ``n`` (M, 3) and to each other."""
+    """Two unit vectors (M, 3) each, perpendicular to the unit normals ``n`` (M, 3) and to each other, with
+    ``b2 = n x b1``."""
     a = np.where((np.abs(n[:, 0]) < 0.9)[:, None], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0])
     t1 = a - np.sum(a * n, axis=1)[:, None] * n
     t1 /= np.linalg.norm(t1, axis=1)[:, None]
-    return t1, np.cross(n, t1)
+    return t1, _cross(n, t1)
 
 
 def pose_covariance(
@@ -65,27 +77,32 @@ def pose_covariance(
     n = ns @ R.T
     c = cs @ R.T + t
     b1, b2 = _tangent_bases(n)
-    # Jacobians (M, 3, 6) of the residuals with respect to (rho, phi): B^T [n]x has rows (b_k x n)^T.
-    J = np.zeros((M, 3, 6))
-    J[:, 0, 3:] = -np.cross(b1, n)
-    J[:, 1, 3:] = -np.cross(b2, n)
-    J[:, 2, :3] = -nm
-    J[:, 2, 3:] = -np.cross(c, nm)
-    # Noise of the residuals: both fits' normal covariances across n, their offsets' variances at the centroid.
+    # The normal's residuals B^T (n_m - n) depend on phi alone, through -B^T [n]x, whose rows are -(b_k x n)^T:
+    # b2 and -b1 (b2 = n x b1); the offset's, n_m . c + d_m, on rho through -n_m and on phi through -(c x n_m).
+    Jn = np.stack([b2, -b1], axis=1)  # (M, 2, 3)
+    Jd = -np.concatenate([nm, _cross(c, nm)], axis=1)  # (M, 6)
+    # Their noise: both fits' normal covariances across n (2 x 2), their offsets' variances at the centroid.
     B = np.stack([b1, b2], axis=2)  # (M, 3, 2)
     Cn = R @ Cs[:, :3, :3] @ R.T + Cm[:, :3, :3]
-    N = np.zeros((M, 3, 3))
-    N[:, :2, :2] = np.swapaxes(B, 1, 2) @ Cn @ B
+    Nn = np.swapaxes(B, 1, 2) @ Cn @ B + _TINY_VAR * np.eye(2)
     hs = np.concatenate([cs, np.ones((M, 1))], axis=1)
     hm = np.concatenate([c, np.ones((M, 1))], axis=1)
-    N[:, 2, 2] = np.einsum("mi,mij,mj->m", hs, Cs, hs) + np.einsum("mi,mij,mj->m", hm, Cm, hm)
-    N += _TINY_VAR * np.eye(3)
-    W = np.linalg.inv(N)
-    r = np.concatenate([np.einsum("mik,mi->mk", B, nm - n), (np.sum(nm * c, axis=1) + dm)[:, None]], axis=1)
-    H = np.einsum("mai,mab,mbj->ij", J, W, J)
-    chi2 = float(np.einsum("ma,mab,mb->", r, W, r))
+    vd = np.einsum("mi,mij,mj->m", hs, Cs, hs) + np.einsum("mi,mij,mj->m", hm, Cm, hm) + _TINY_VAR
+    det = Nn[:, 0, 0] * Nn[:, 1, 1] - Nn[:, 0, 1] * Nn[:, 1, 0]
+    Wn = np.stack([np.stack([Nn[:, 1, 1], -Nn[:, 0, 1]], axis=1), np.stack([-Nn[:, 1, 0], Nn[:, 0, 0]], axis=1)],
+                  axis=1) / det[:, None, None]
+    rn = np.einsum("mik,mi->mk", B, nm - n)  # (M, 2)
+    rd = np.sum(nm * c, axis=1) + dm
+    # Each pair's squared residual in its own noise (3 dof). A pair far worse than the others (a map plane biased
+    # by centimetres, with the tiny covariance of a large fit) has its noise scaled up to _OUTLIER_FACTOR times the
+    # median pair's residual. Otherwise the variance factor would blow up every direction with it (a corridor's
+    # length, held by two door jambs, to 1.8 m for a pose 9 mm off).
+    chi2 = np.einsum("ma,mab,mb->m", rn, Wn, rn) + rd * rd / vd
+    k = np.maximum(1.0, chi2 / max(_OUTLIER_FACTOR * float(np.median(chi2)), 1e-300))
+    H = (Jd.T * (1.0 / (vd * k))) @ Jd
+    H[3:, 3:] += np.einsum("mai,mab,mbj->ij", Jn, Wn / k[:, None, None], Jn)
     dof = 3 * M - 6
-    s0sq = max(chi2 / dof, 1.0) if dof > 0 else 1.0
+    s0sq = max(float(np.sum(chi2 / k)) / dof, 1.0) if dof > 0 else 1.0
     eig = np.linalg.eigvalsh(H)
     if not eig[0] > 1e-12 * eig[-1]:
         return None, s0sq
