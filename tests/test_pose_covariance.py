@@ -185,7 +185,7 @@ def test_one_biased_plane_does_not_blow_up_every_direction():
                       [5.0, 1.85, 1.0], [1.0, 0.0, 0.4]])
     d_map = -np.sum(n_map * c_map, axis=1)
     T_true = look_at((1.0, 1.0, 1.2), (6.0, 1.0, 1.0))
-    sigma_x = []
+    sigma_x, sigma_x_full = [], []
     for bias in (0.0, 0.03):
         rng = np.random.default_rng(3)
         ns, ds, cs, covs = _noisy_submap(rng, T_true, n_map, c_map, math.radians(0.3), 0.003)
@@ -195,7 +195,11 @@ def test_one_biased_plane_does_not_blow_up_every_direction():
         T_est = _least_squares_pose(ns, cs, n_map, d_map, covs)
         cov, _ = pose_covariance(T_est, ns, cs, covs, n_map, d_map, np.zeros((len(ns), 4, 4)))
         sigma_x.append(math.sqrt(cov[0, 0]))
+        full, _ = pose_covariance(T_est, ns, cs, covs, n_map, d_map, np.zeros((len(ns), 4, 4)),
+                                  outlier_factor=math.inf)
+        sigma_x_full.append(math.sqrt(full[0, 0]))
     assert sigma_x[1] < 1.5 * sigma_x[0], sigma_x
+    assert sigma_x_full[1] > 2 * sigma_x_full[0], sigma_x_full
 
 
 def test_pairs_that_do_not_fix_the_pose_give_no_covariance():
@@ -209,6 +213,8 @@ def test_pairs_that_do_not_fix_the_pose_give_no_covariance():
     assert cov is None  # two pairs
     with pytest.raises(ValueError, match="inflation"):
         pose_covariance(np.eye(4), n, c, covs, n, d, covs, inflation=0.0)
+    with pytest.raises(ValueError, match="outlier_factor"):
+        pose_covariance(np.eye(4), n, c, covs, n, d, covs, outlier_factor=0.5)
     with pytest.raises(ValueError, match="MatchingParams: covariance_inflation"):
         MatchingParams(covariance_inflation=0.0)
 

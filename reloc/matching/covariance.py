@@ -21,11 +21,13 @@ degrees of freedom (6), docs/BENCHMARKS.md, "A covariance for the relocalized po
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from reloc.transforms import check_transform
 
-__all__ = ["pose_covariance"]
+__all__ = ["OUTLIER_FACTOR", "pose_covariance"]
 
 # Added to the fits' variances so that exact planes (ground truth, zero covariance) still give a solvable system:
 # (1 micro-radian)^2 and (1 micrometre)^2, far below any measured plane's.
@@ -33,7 +35,7 @@ _TINY_VAR = 1e-12
 # A pair whose squared residual exceeds this many times the median pair's weighs as if it were just this many times
 # (of pairs with Gaussian noise, 2.3 % exceed it: 4 x 2.37, the median of a chi-square of 3 degrees of freedom, is its
 # 97.7th percentile).
-_OUTLIER_FACTOR = 4.0
+OUTLIER_FACTOR = 4.0
 
 
 def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -53,14 +55,15 @@ def _tangent_bases(n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 def pose_covariance(
     T_map_sub, sub_normals, sub_centroids, sub_covariances, map_normals, map_offsets, map_covariances,
-    inflation: float = 4.0,
+    inflation: float = 4.0, outlier_factor: float = OUTLIER_FACTOR,
 ) -> tuple[np.ndarray | None, float]:
     """Covariance (6, 6) of the left perturbation ``(rho, phi)`` of ``T_map_sub`` (4x4) in the map frame, from M
     matched plane pairs: submap planes (``sub_normals`` (M, 3) and ``sub_centroids`` (M, 3) in the submap frame,
     ``sub_covariances`` (M, 4, 4) of their ``(n, d)``) and the map planes they match (``map_normals`` (M, 3),
     ``map_offsets`` (M,), ``map_covariances`` (M, 4, 4)). Returns ``(cov, s0^2)``: ``cov`` is None when the pairs
     do not fix all six degrees of freedom (fewer than three, or parallel normals); ``s0^2`` is the variance factor
-    of the pairs' residuals (see the module's docstring) that scaled it."""
+    of the pairs' residuals (see the module's docstring) that scaled it. ``outlier_factor``: a pair's squared
+    residual counts at most this many times the median pair's (``math.inf``: every pair in full)."""
     T = check_transform(T_map_sub, "T_map_sub")
     ns = np.asarray(sub_normals, dtype=np.float64).reshape(-1, 3)
     M = len(ns)
@@ -71,6 +74,8 @@ def pose_covariance(
     Cm = np.asarray(map_covariances, dtype=np.float64).reshape(M, 4, 4)
     if not inflation > 0:
         raise ValueError(f"inflation: expected > 0, got {inflation!r}")
+    if not outlier_factor >= 1:
+        raise ValueError(f"outlier_factor: expected >= 1, got {outlier_factor!r}")
     if M < 3:
         return None, float("nan")
     R, t = T[:3, :3], T[:3, 3]
@@ -94,11 +99,14 @@ def pose_covariance(
     rn = np.einsum("mik,mi->mk", B, nm - n)  # (M, 2)
     rd = np.sum(nm * c, axis=1) + dm
     # Each pair's squared residual in its own noise (3 dof). A pair far worse than the others (a map plane biased
-    # by centimetres, with the tiny covariance of a large fit) has its noise scaled up to _OUTLIER_FACTOR times the
-    # median pair's residual. Otherwise the variance factor would blow up every direction with it (a corridor's
+    # by centimetres, with the tiny covariance of a large fit) has its noise scaled up to make it outlier_factor times
+    # the median pair's. Otherwise the variance factor would blow up every direction with it (a corridor's
     # length, held by two door jambs, to 1.8 m for a pose 9 mm off).
     chi2 = np.einsum("ma,mab,mb->m", rn, Wn, rn) + rd * rd / vd
-    k = np.maximum(1.0, chi2 / max(_OUTLIER_FACTOR * float(np.median(chi2)), 1e-300))
+    if math.isinf(outlier_factor):
+        k = np.ones(M)
+    else:
+        k = np.maximum(1.0, chi2 / max(outlier_factor * float(np.median(chi2)), 1e-300))
     H = (Jd.T * (1.0 / (vd * k))) @ Jd
     H[3:, 3:] += np.einsum("mai,mab,mbj->ij", Jn, Wn / k[:, None, None], Jn)
     dof = 3 * M - 6
