@@ -257,6 +257,10 @@ def run_demo(spec: DemoSpec | None = None, cfg=None, *, progress: Callable[[str,
         else round(s.median_translation_error_m, 5),
         "median_rotation_error_deg": None if not math.isfinite(s.median_rotation_error_deg)
         else round(s.median_rotation_error_deg, 4),
+        # The true poses' errors against their own covariances (reloc.matching.covariance).
+        "covariance": {"checked": s.covariance_checked,
+                       "within_95": None if not math.isfinite(s.within_95) else round(s.within_95, 4),
+                       "median_sigma_m": None if not math.isfinite(s.median_sigma_m) else round(s.median_sigma_m, 5)},
         "latency_ms": latency,
         "phases_s": {k: round(v, 2) for k, v in phases.items()},
         "numba": {"kernels": info["kernels"], "compiled_cold": info["cold"]},
@@ -285,6 +289,12 @@ def format_demo(result: dict) -> str:
         f"{'-' if result['median_rotation_error_deg'] is None else format(result['median_rotation_error_deg'], '.3f'):>10}",
         "(ident: positives whose true pose the map confirms, R_id the recall over them; the others no search can "
         "answer under the acceptance rules)",
+    ]
+    cov = result.get("covariance") or {}
+    if cov.get("checked"):
+        lines.append(f"pose covariance: {round(cov['within_95'] * cov['checked'])} of {cov['checked']} true poses "
+                     f"inside its 95 % ellipsoid, translation sigma {1000 * cov['median_sigma_m']:.1f} mm (median)")
+    lines += [
         "",
         f"{'stage':<22} {'median[ms]':>10} {'p95[ms]':>9} {'mean[ms]':>9}",
     ]

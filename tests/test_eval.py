@@ -185,6 +185,12 @@ def test_demo_runs_and_reports(tmp_path, monkeypatch, capsys):
     assert result["latency_ms"]["relocalization_total"]["median"] > 0
     text = format_demo(result)
     assert "TP" in text and "R_id[%]" in text and "relocalization_total" in text
+    # Each true pose is judged by its own covariance: its normalized squared error and spread are reported.
+    tps = [o for o in result["outcomes"] if o["label"] == "TP"]
+    assert result["covariance"]["checked"] == len(tps)
+    assert all(o["pose_nees"] >= 0 and 0 < o["pose_sigma_m"] < 0.25 for o in tps)
+    if tps:
+        assert f"of {len(tps)} true poses inside its 95 % ellipsoid" in text
     json.loads(json.dumps(result))  # JSON-ready
     assert np.isfinite(result["phases_s"]["total_s"])
 

@@ -235,3 +235,26 @@ def test_a_relocalized_result_carries_its_covariance_and_a_rejected_one_none():
     assert np.allclose(back["covariance"], cov, rtol=1e-5, atol=0)
     other = reloc.locate(view_planes(furnished_room("office"), look_at((1, 1, 1.5), (5, 4, 0.5))))
     assert not other.relocalized and other.covariance is None and other.to_dict()["covariance"] is None
+
+
+def test_an_answer_is_judged_by_its_own_covariance():
+    from reloc.evaluation.metrics import covariance_check
+
+    rng = np.random.default_rng(2)
+    T_true = look_at((1.0, 2.0, 1.5), (4.0, 3.0, 0.5))
+    delta = np.array([0.01, -0.02, 0.005, 0.001, -0.002, 0.003])
+    T_est = invert(exp_se3(delta)) @ T_true  # T_true = exp(delta) T_est
+    sig = np.array([0.01, 0.02, 0.01, 0.002, 0.002, 0.003])
+    nees, sigma_t = covariance_check(T_est, T_true, np.diag(sig**2))
+    assert nees == pytest.approx(np.sum((delta / sig) ** 2), rel=1e-9)
+    assert sigma_t == pytest.approx(math.sqrt(np.sum(sig[:3] ** 2)))
+    assert all(math.isnan(v) for v in covariance_check(T_est, T_true, None))
+    # Any rotation of the map frame with its covariance gives the same normalized error.
+    R = rotation_from_axis_angle(rng.normal(size=3))
+    G = transform_from_rotation_translation(R, rng.normal(size=3))
+    Ad = np.zeros((6, 6))
+    Ad[:3, :3] = R
+    Ad[3:, 3:] = R
+    Ad[:3, 3:] = np.array([[0, -G[2, 3], G[1, 3]], [G[2, 3], 0, -G[0, 3]], [-G[1, 3], G[0, 3], 0]]) @ R
+    moved, _ = covariance_check(G @ T_est, G @ T_true, Ad @ np.diag(sig**2) @ Ad.T)
+    assert moved == pytest.approx(nees, rel=1e-6)

@@ -37,8 +37,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-__all__ = ["Outcome", "classify", "identifiable", "twin_confirmed", "Summary", "summarize", "format_table",
-           "TP_MAX_TRANSLATION_M", "TP_MAX_ROTATION_DEG"]
+__all__ = ["Outcome", "classify", "covariance_check", "identifiable", "twin_confirmed", "Summary", "summarize",
+           "format_table", "CHI2_6_95", "TP_MAX_TRANSLATION_M", "TP_MAX_ROTATION_DEG"]
 
 TP_MAX_TRANSLATION_M = 0.25
 TP_MAX_ROTATION_DEG = 5.0
@@ -63,6 +63,10 @@ class Outcome:
     identifiable: bool | None = None  # None: a negative or ambiguous query, or not checked
     identifiable_reason: str = ""  # why the true pose is not confirmed (empty when it is)
     twin_confirmed: bool | None = None  # a symmetric twin of the true pose is confirmed too (None: not checked)
+    # A positive's answer judged by its own covariance (NaN without one): delta^T cov^-1 delta of its error, a
+    # chi-square of 6 dof when the covariance describes the errors, and the covariance's translation sigma (m).
+    pose_nees: float = math.nan
+    pose_sigma_m: float = math.nan
 
     def to_dict(self) -> dict:
         def num(v):
@@ -75,7 +79,26 @@ class Outcome:
             "total_ms": num(self.total_ms), "timings_ms": {k: num(v) for k, v in self.timings_ms.items()},
             "counts": dict(self.counts), "identifiable": self.identifiable,
             "identifiable_reason": self.identifiable_reason, "twin_confirmed": self.twin_confirmed,
+            "pose_nees": num(self.pose_nees), "pose_sigma_m": num(self.pose_sigma_m),
         }
+
+
+# 95 % of a chi-square of 6 degrees of freedom: a pose error outside this normalized squared distance lies outside its
+# covariance's 95 % ellipsoid.
+CHI2_6_95 = 12.59
+
+
+def covariance_check(T_est, T_true, covariance) -> tuple[float, float]:
+    """``(delta^T cov^-1 delta, sigma_t)`` of an answer ``T_est`` against ``T_true`` (both 4x4 ``T_map_cam``), with
+    ``delta = log(T_true T_est^-1)`` (the left perturbation in the map frame that its ``covariance`` (6, 6) is over)
+    and ``sigma_t`` the square root of the covariance's translation trace; NaNs without a covariance."""
+    if covariance is None:
+        return math.nan, math.nan
+    from reloc.transforms import invert, log_se3
+
+    cov = np.asarray(covariance, dtype=np.float64)
+    delta = log_se3(np.asarray(T_true, dtype=np.float64) @ invert(np.asarray(T_est, dtype=np.float64)))
+    return float(delta @ np.linalg.solve(cov, delta)), math.sqrt(max(float(np.trace(cov[:3, :3])), 0.0))
 
 
 def classify(positive: bool, ambiguous: bool, relocalized: bool, errors: tuple[float, float] | None) -> str:
@@ -142,6 +165,9 @@ class Summary:
     unique: int = 0  # identifiable queries with no symmetric twin of the true pose confirmed as well
     identified_unique: int = 0  # of those, the TPs
     recall_unique: float = math.nan  # identified_unique / unique
+    covariance_checked: int = 0  # TPs with a covariance
+    within_95: float = math.nan  # the share of them whose error lies inside its covariance's 95 % ellipsoid
+    median_sigma_m: float = math.nan  # their covariances' translation sigma, median
 
     def to_dict(self) -> dict:
         out = {}
@@ -165,6 +191,7 @@ def summarize(name: str, outcomes: list[Outcome]) -> Summary:
     identified_unique = sum(o.identifiable is True and o.twin_confirmed is False and o.label == "TP" for o in counted)
     errs = np.array([(o.translation_error_m, o.rotation_error_deg) for o in outcomes if o.label == "TP"]).reshape(-1, 2)
     times = np.array([o.total_ms for o in outcomes if math.isfinite(o.total_ms)])
+    checked = [o for o in outcomes if o.label == "TP" and math.isfinite(o.pose_nees)]
     stages: dict[str, list[float]] = {}
     for o in outcomes:
         for k, v in o.timings_ms.items():
@@ -183,6 +210,9 @@ def summarize(name: str, outcomes: list[Outcome]) -> Summary:
         recall_identifiable=identified / identifiable if identifiable else math.nan,
         unique=unique, identified_unique=identified_unique,
         recall_unique=identified_unique / unique if unique else math.nan,
+        covariance_checked=len(checked),
+        within_95=float(np.mean([o.pose_nees < CHI2_6_95 for o in checked])) if checked else math.nan,
+        median_sigma_m=float(np.median([o.pose_sigma_m for o in checked])) if checked else math.nan,
     )
 
 

@@ -22,7 +22,15 @@ from typing import Callable
 import numpy as np
 
 from reloc.evaluation.ambiguity import is_ambiguous, scene_symmetries
-from reloc.evaluation.metrics import Outcome, Summary, classify, identifiable, summarize, twin_confirmed
+from reloc.evaluation.metrics import (
+    Outcome,
+    Summary,
+    classify,
+    covariance_check,
+    identifiable,
+    summarize,
+    twin_confirmed,
+)
 from reloc.mapping import MappingParams, PlaneMap, build_map, grow_submap
 from reloc.matching import MatchingParams, Relocalizer, ablation_params, scaled_to_sensor
 from reloc.planeset import PlaneSet
@@ -253,6 +261,8 @@ def evaluate_queries(relocalizer: Relocalizer, queries: list[Query], scene_name:
             ident, why = identifiable(relocalizer, q.submap, q.T_world_cam)
             if ident:
                 twin = twin_confirmed(relocalizer, q.submap, q.T_world_cam, symmetries)
+        nees, sigma = (covariance_check(res.T_map_cam, q.T_world_cam, res.covariance) if errors
+                       else (math.nan, math.nan))
         out.append(Outcome(
             scene=scene_name, query=q.name, positive=positive, ambiguous=q.ambiguous and positive,
             status=res.status, reason=res.reason, label=label,
@@ -260,6 +270,7 @@ def evaluate_queries(relocalizer: Relocalizer, queries: list[Query], scene_name:
             total_ms=res.timings_ms.get("total", math.nan),
             timings_ms={**{k: v for k, v in res.timings_ms.items() if k != "total"}, **q.timings_ms},
             counts=res.counts, identifiable=ident, identifiable_reason=why, twin_confirmed=twin,
+            pose_nees=nees, pose_sigma_m=sigma,
         ))
         if progress is not None:
             progress(1)
