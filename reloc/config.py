@@ -445,8 +445,8 @@ class EvaluationConfig(_Section):
     covariance_inflation: float = Field(
         4.0, gt=0,
         description="A relocalized pose's covariance (from its matched planes, scaled by their residuals) is "
-        "multiplied by this, so that the simulated suite's pose errors follow it (docs/BENCHMARKS.md, 'A covariance "
-        "for the relocalized pose').",
+        "multiplied by this, so that the simulated suite's pose errors follow it (docs/BENCHMARKS.md, 'Pose "
+        "covariance').",
     )
     min_competitor_fraction: float = Field(
         0.6, ge=0, le=1,

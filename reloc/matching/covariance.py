@@ -16,7 +16,7 @@ times the median pair's has its noise scaled up to make it 4 times (a biased pla
 one); the covariance is scaled by the a-posteriori variance factor of the pairs so weighed, ``s0^2 = sum r^T N^-1 r /
 (3 M - 6)`` (at least 1), and by ``inflation`` (4 by default), set so that the pose errors of the simulated suite
 follow the covariance: the normalized squared error ``delta^T cov^-1 delta`` has about the mean of a chi-square of 6
-degrees of freedom (6), docs/BENCHMARKS.md, "A covariance for the relocalized pose".
+degrees of freedom (6), docs/BENCHMARKS.md, "Pose covariance".
 """
 
 from __future__ import annotations
@@ -100,8 +100,8 @@ def pose_covariance(
     rd = np.sum(nm * c, axis=1) + dm
     # Each pair's squared residual in its own noise (3 dof). A pair far worse than the others (a map plane biased
     # by centimetres, with the tiny covariance of a large fit) has its noise scaled up to make it outlier_factor times
-    # the median pair's. Otherwise the variance factor would blow up every direction with it (a corridor's
-    # length, held by two door jambs, to 1.8 m for a pose 9 mm off).
+    # the median pair's. Otherwise the variance factor would blow up every direction with it (along a corridor's
+    # length, to 1.8 m of sigma for a pose 9 mm off, replicate A's corridor/robot/7).
     chi2 = np.einsum("ma,mab,mb->m", rn, Wn, rn) + rd * rd / vd
     if math.isinf(outlier_factor):
         k = np.ones(M)
