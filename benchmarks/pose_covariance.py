@@ -32,14 +32,13 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from _common import git_info, print_table, quick_presets, write_results  # noqa: E402
 
-CHI2_6_95 = 12.59
-CHI2_6_99 = 16.81
+CHI2_6_99 = 16.81  # 99 % of a chi-square of 6 degrees of freedom (95 %: reloc.evaluation.metrics.CHI2_6_95)
 
 
 def normalized_errors(prepared, params) -> dict:
     """Per covariance (fit only, every pair in full, ours) the normalized squared errors of the suite's true poses,
     with the translation errors and the covariances' translation sigmas (sqrt of the trace, m)."""
-    from reloc.evaluation.metrics import TP_MAX_ROTATION_DEG, TP_MAX_TRANSLATION_M
+    from reloc.evaluation.metrics import TP_MAX_ROTATION_DEG, TP_MAX_TRANSLATION_M, covariance_check
     from reloc.matching.covariance import pose_covariance
     from reloc.transforms import invert, log_se3, pose_error
 
@@ -64,16 +63,18 @@ def normalized_errors(prepared, params) -> dict:
                                          planes.normals[i], planes.offsets[i], planes.covariances[i],
                                          params.covariance_inflation, outlier_factor=math.inf)
             fit = full / (s0sq * params.covariance_inflation)
-            delta = log_se3(q.T_world_cam @ invert(res.T_map_cam))
             for key, cov in (("fit only", fit), ("every pair in full", full), ("ours", res.covariance)):
-                out[key].append(float(delta @ np.linalg.solve(cov, delta)))
-                sig[key].append(math.sqrt(np.trace(cov[:3, :3])))
-            errors.append(float(np.linalg.norm(delta[:3])))
+                nees, sigma_t = covariance_check(res.T_map_cam, q.T_world_cam, cov)
+                out[key].append(nees)
+                sig[key].append(sigma_t)
+            errors.append(float(np.linalg.norm(log_se3(q.T_world_cam @ invert(res.T_map_cam))[:3])))
             names.append(q.name)
     return {"nees": out, "sigma_t_m": sig, "error_t_m": errors, "queries": names}
 
 
 def summary(nees: list[float], sigma: list[float], errors: list[float]) -> dict:
+    from reloc.evaluation.metrics import CHI2_6_95
+
     e = np.asarray(nees)
     if len(e) == 0:
         return {"poses": 0}
