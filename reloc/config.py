@@ -410,6 +410,12 @@ class EvaluationConfig(_Section):
         "the map knows nothing (no plane in conflict with a map surface) and makes up min_explained_fraction: a place "
         "the mapping run saw in part. 0 turns this off.",
     )
+    known_conflict_min_area_m2: float = Field(
+        0.5, ge=0,
+        description="...where only planes of at least this area count as in conflict: a facet of curved clutter a few "
+        "centimetres off a map surface does not decide (0: every plane counts, as before 2026-11-30; over the tuned "
+        "suite and eight held-out replicates 11 true poses more and no false positive, 1.0 added two).",
+    )
     refine_iterations: int = Field(2, ge=0, le=10, description="Least-squares refinements of the winning pose.")
     refine_at_centroids: bool = Field(
         True,

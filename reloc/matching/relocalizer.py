@@ -772,7 +772,7 @@ class Relocalizer:
                 break
             v = self.verify(used, vs_ptr, vs_pts, T_new[None, :3, :3], T_new[None, :3, 3], cand_row,
                             require_triplet=False)
-            if not self._holds(v, min_matched):
+            if not self._holds(v, min_matched, used.areas):
                 why = f"{int(v.n_matched[0])} planes, {v.explained[0]:.2f} of the submap at the refined pose"
                 break
             T, match_row, proj_row, explained = T_new, v.match[0], v.proj[0], float(v.explained[0])
@@ -788,7 +788,7 @@ class Relocalizer:
         v = self.verify(used, vs_ptr, vs_pts, T[None, :3, :3], T[None, :3, 3], cand_row, require_triplet=False,
                         tight=True)
         timings["refine"] = (time.perf_counter() - t0) * 1e3
-        if not self._holds(v, min_matched):
+        if not self._holds(v, min_matched, used.areas):
             return _rejected(f"pose does not hold at tight tolerances: {int(v.n_matched[0])} planes, "
                              f"{v.explained[0]:.2f} of the submap", counts, timings)
         match_row, explained = v.match[0], float(v.explained[0])
@@ -833,10 +833,11 @@ class Relocalizer:
             hidden = state[0] == 6
         return support_per_direction(used, v.match[0], p.min_counted_area_m2, hidden)
 
-    def _holds(self, v: Verification, min_matched: int) -> bool:
-        """Whether the single pose verified in ``v`` passes, explains enough and matches ``min_matched`` planes."""
+    def _holds(self, v: Verification, min_matched: int, areas: np.ndarray) -> bool:
+        """Whether the single pose verified in ``v`` passes, explains enough and matches ``min_matched`` planes
+        (``areas``: of the submap planes ``v`` judged)."""
         return bool(v.passed[0] and explains_enough(v.explained[0], v.unknown[0], v.state[0], self.params,
-                                                    v.n_matched[0])
+                                                    v.n_matched[0], areas)
                     and v.n_matched[0] >= min_matched)
 
     def confirm(self, submap: PlaneSet, T_map_cam) -> RelocResult:

@@ -53,12 +53,14 @@ def in_conflict(state: np.ndarray) -> np.ndarray:
     return (state == 2) | (state == 6)
 
 
-def explains_enough(explained, unknown, state, params: MatchingParams, n_matched=None):
+def explains_enough(explained, unknown, state, params: MatchingParams, n_matched=None, areas=None):
     """Whether each pose explains enough of the submap to be accepted (bool, shape of ``explained``).
 
     It explains ``min_explained_fraction``; or, with ``min_explained_known_fraction`` > 0, it explains at least that
     and its unexplained planes land only where the map knows nothing (no plane in conflict with a map surface or
-    hidden behind one: :func:`in_conflict` nowhere) and make up the rest (``explained + unknown >=
+    hidden behind one: :func:`in_conflict` nowhere; with ``areas`` (S,), the submap planes' areas, and
+    ``known_conflict_min_area_m2`` > 0, no such plane of at least that area: a facet of curved clutter a few
+    centimetres off a map surface does not decide it) and make up the rest (``explained + unknown >=
     min_explained_fraction``): a place the mapping run saw in part is not held against the true pose, while its
     rivals get the same credit (optimistic rivals) and the density margin still decides. With ``n_matched`` (the
     matched planes, shape of ``explained``) and ``well_matched_planes`` > 0, a pose matching that many planes or more
@@ -72,7 +74,10 @@ def explains_enough(explained, unknown, state, params: MatchingParams, n_matched
             explained >= params.well_matched_explained_fraction)
     if params.min_explained_known_fraction > 0 and unknown is not None and state is not None:
         st = np.asarray(state)
-        clean = ~np.any(in_conflict(st), axis=-1)
+        bad = in_conflict(st)
+        if params.known_conflict_min_area_m2 > 0 and areas is not None:
+            bad = bad & (np.asarray(areas) >= params.known_conflict_min_area_m2)
+        clean = ~np.any(bad, axis=-1)
         ok |= (clean & (explained >= params.min_explained_known_fraction)
                & (explained + np.asarray(unknown) >= params.min_explained_fraction))
     return ok
@@ -219,7 +224,7 @@ def decide(
         timings_ms["weights"] = timings_ms.get("weights", 0.0) + (t1 - t0) * 1e3
         timings_ms["density"] = timings_ms.get("density", 0.0) + (t2 - t1) * 1e3
     need = params.min_matched_planes if min_matched is None else min_matched
-    eligible = (n_matched >= need) & explains_enough(explained, unknown, state, params, n_matched)
+    eligible = (n_matched >= need) & explains_enough(explained, unknown, state, params, n_matched, areas)
     if not eligible.any():
         a = int(np.argmax(quality))
         return Decision(
