@@ -685,6 +685,17 @@ class LiveConfig(_Section):
     reconnect_backoff_s: BackoffSeq = Field(
         (0.1, 0.2, 0.5, 1.0, 2.0), description="Waits between reconnect attempts of a lost camera (the last repeats)."
     )
+    odometry_drift_m_per_m: float = Field(
+        0.025, ge=0,
+        description="Tracked poses' covariance: the odometry's position drift (one sigma) per metre driven since the "
+        "last relocalization, besides its heading error over half the path...",
+    )
+    odometry_heading_drift_per_turn: float = Field(
+        0.01, ge=0, description="...its heading drift per angle turned (a gyro or wheel-base scale error)...")
+    odometry_heading_drift_deg_per_m: float = Field(
+        0.0, ge=0, description="...per metre driven (a heading from the wheels alone)...")
+    odometry_heading_drift_deg_per_s: float = Field(
+        0.115, ge=0, description="...and per second (a gyro's bias); benchmarks/tracked_covariance.py measures them.")
 
 
 class SerialConfig(_Section):

@@ -6,7 +6,6 @@ against its ground truth. Also the `reloc run --serial` command against the simu
 from __future__ import annotations
 
 import json
-import math
 import threading
 import time
 
@@ -90,6 +89,9 @@ def test_loop_relocalizes_end_to_end_with_the_simulated_firmware(tmp_path, livin
             mcu.request_relocalization()
             answered.append(wait_until(lambda: any(c.request_id and c.status == PoseStatus.OK
                                                    for c in list(mcu.pose_checks)), 20.0))
+            # Poses tracked from it with the odometry, a few seconds' worth.
+            wait_until(lambda: sum(c.status == PoseStatus.TRACKED and c.stamped for c in list(mcu.pose_checks)) >= 15,
+                       20.0)
         finally:
             loop.stop()
 
@@ -115,10 +117,15 @@ def test_loop_relocalizes_end_to_end_with_the_simulated_firmware(tmp_path, livin
     assert all(c.position_error_m < 0.3 for c in early), early
     assert checks and all(c.ok for c in checks), checks
     assert all(c.position_error_m < 0.1 and c.yaw_error_deg < 2.0 for c in checks)
-    # Each relocalized pose came with its covariance (a spread of millimetres to a few centimetres), the tracked ones
-    # without (all zeros: unknown).
+    # Each relocalized pose came with its covariance (a spread of millimetres to a few centimetres)...
     assert all(0.0005 < c.position_sigma_m < 0.1 for c in checks + early), [c.position_sigma_m for c in checks]
-    assert all(math.isnan(c.position_sigma_m) for c in mcu.pose_checks if c.status == PoseStatus.TRACKED)
+    # ...and so did each pose tracked from it with the firmware's odometry: its spread grows with the odometry's
+    # drift, and the truth lies within it.
+    tracked = [c for c in mcu.pose_checks if c.status == PoseStatus.TRACKED and c.stamped]
+    err = np.array([c.position_error_m for c in tracked])
+    sigma = np.array([c.position_sigma_m for c in tracked])
+    assert len(tracked) >= 10 and np.all(sigma > 0.0005) and sigma[-1] > sigma[0], sigma
+    assert np.mean(err <= 3 * sigma) >= 0.95, np.c_[err, sigma]
     # The loop's own record agrees with the camera's truth.
     for r in summary.relocalizations:
         if r.ok:

@@ -36,7 +36,7 @@ from reloc.camera import DepthFrame
 from reloc.live.frame_queue import DropOldestQueue
 from reloc.live.params import LiveParams
 from reloc.live.submap import SubmapWindow
-from reloc.live.tracking import explained_fraction, is_jump, predict_T_map_cam
+from reloc.live.tracking import explained_fraction, is_jump, odometry_step, predict_T_map_cam, tracked_covariance
 from reloc.planeset import PlaneSet
 from reloc.profiling import Profiler
 from reloc.transforms import invert, pose_error
@@ -302,8 +302,12 @@ class LiveLoop:
         self.state = "starting"  # starting | localized | searching
         self.last_error = ""
 
-        # The last accepted pose: (T_map_cam, T_odom_cam at that frame, seq, odometry kind).
-        self._verified: tuple[np.ndarray, np.ndarray | None, int, str] | None = None
+        # The last accepted pose: (T_map_cam, T_odom_cam at that frame, seq, odometry kind, its covariance or None,
+        # the frame's stamp).
+        self._verified: tuple[np.ndarray, np.ndarray | None, int, str, np.ndarray | None, int] | None = None
+        # The odometry's motion since that pose, for the tracked poses' covariance: [the _verified tuple it is
+        # counted from, the last T_odom_cam, path length (m), angle turned (rad)].
+        self._track_motion: list | None = None
         self._prev_odom: tuple[str, np.ndarray, int] | None = None  # (kind, T_odom_cam, seq)
         self._odom_reset_pending = False
         self._odom_epoch = 0  # counts resets of the odometry chain
@@ -566,11 +570,12 @@ class LiveLoop:
             self._prev_odom = None if T_odom_cam is None else (odo_kind, T_odom_cam, frame.seq)
             self._window.push(planes, T_odom_cam, frame.seq)
 
-        T_pred = None
+        T_pred = cov_pred = None
         with prof.stage("track"):
             verified = self._verified
             if verified is not None and T_odom_cam is not None and verified[1] is not None and verified[3] == odo_kind:
                 T_pred = predict_T_map_cam(verified[0], verified[1], T_odom_cam)
+                cov_pred = self._tracked_covariance(verified, T_odom_cam, T_pred, frame.stamp_ns)
                 if self.map_planes is not None:
                     frac = explained_fraction(planes, T_pred, self.map_planes,
                                               max_angle_rad=self.params.check_max_angle_rad,
@@ -590,7 +595,7 @@ class LiveLoop:
             self._event(f"lost ({lost_trigger}) at seq {frame.seq}")
         if T_pred is not None and self.bridge is not None:
             self._post(("tracked", T_pred, frame.stamp_ns if self._host_clock(frame.stamp_ns, t_cap) else t_cap, 0.0,
-                        0))
+                        0, cov_pred))
 
         trigger, request_ids = self._trigger(lost_trigger)
         if trigger is not None:
@@ -641,6 +646,32 @@ class LiveLoop:
             finally:
                 self._mailbox.done()
 
+    def _tracked_covariance(self, verified, T_odom_cam: np.ndarray, T_pred: np.ndarray, stamp_ns: int):
+        """The covariance of the pose tracked from ``verified`` (see ``_verified``) to this frame
+        (:func:`reloc.live.tracking.tracked_covariance`: the relocalized pose's, plus the odometry's drift over the
+        path driven since, counted frame by frame), or None when the relocalizer gave none."""
+        motion = self._track_motion
+        if motion is None or motion[0] is not verified:
+            # A new reference: the motion from its frame to this one (the relocalization's latency) in one step.
+            motion = self._track_motion = [verified, verified[1], 0.0, 0.0]
+        step_m, step_rad = odometry_step(motion[1], T_odom_cam)
+        motion[1] = T_odom_cam
+        motion[2] += step_m
+        motion[3] += step_rad
+        if verified[4] is None:
+            return None
+        return tracked_covariance(verified[4], T_pred[:3, 3], self._map_up, motion[2], motion[3],
+                                  max(0.0, (stamp_ns - verified[5]) * 1e-9), self.params.odometry_drift)
+
+    @property
+    def _map_up(self) -> np.ndarray:
+        """The map's up (unit, map frame): against its gravity; z without one (the map frame's convention)."""
+        for planes in (getattr(self.relocalizer, "planes", None), self.map_planes):
+            g = getattr(planes, "gravity", None)
+            if g is not None:
+                return -np.asarray(g, dtype=np.float64)
+        return np.array([0.0, 0.0, 1.0])
+
     def _relocalize(self, job: _Job, prof: Profiler) -> None:
         t0 = time.perf_counter_ns()
         try:
@@ -678,7 +709,10 @@ class LiveLoop:
         if ok:
             # A result for a frame from before an odometry reset cannot be propagated with the new odometry.
             T_odom = job.T_odom_cam if job.odometry_epoch == self._odom_epoch else None
-            self._verified = (T, T_odom, job.seq, job.odometry_kind)
+            C = None if cov is None else np.asarray(cov, dtype=np.float64)
+            if C is not None and C.shape != (6, 6):
+                C = None
+            self._verified = (T, T_odom, job.seq, job.odometry_kind, C, job.stamp_ns)
             self._bad_streak = 0
             self._last_ok_s = now
             self.state = "localized"
@@ -743,10 +777,10 @@ class LiveLoop:
                         break
                     with prof.stage("serial.send_pose"):
                         if item[0] == "tracked":
-                            _, T_map_cam, stamp, score, rid = item
+                            _, T_map_cam, stamp, score, rid, cov = item
                             T_map_base = T_map_cam @ self.T_cam_base
                             bridge.send_pose(T_map_base, stamp, status=PoseStatus.TRACKED, score=score,
-                                             request_id=rid)
+                                             request_id=rid, covariance=cov)
                         else:
                             _, T_map_cam, stamp, score, rid, reason, cov = item
                             if T_map_cam is not None:

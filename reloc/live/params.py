@@ -7,6 +7,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from reloc.live.tracking import OdometryDrift
 from reloc.transforms import check_transform
 
 __all__ = ["LiveParams"]
@@ -27,6 +28,8 @@ class LiveParams:
     - ``status_period_s``: status line period; ``stall_s``: a gap in the frame stream this long is a stall.
     - ``reconnect_backoff_s``: waits between reconnect attempts of a lost source (the last repeats).
     - ``T_base_cam``: (4, 4) camera mounting on the robot base (for odometry in and poses out over serial).
+    - ``odometry_drift``: how far the odometry may drift from a relocalized pose, for the covariance of the poses
+      tracked from it (:class:`reloc.live.tracking.OdometryDrift`).
     """
 
     queue_frames: int = 4
@@ -44,6 +47,7 @@ class LiveParams:
     stall_s: float = 1.0
     reconnect_backoff_s: tuple = (0.1, 0.2, 0.5, 1.0, 2.0)
     T_base_cam: np.ndarray = field(default_factory=lambda: np.eye(4))
+    odometry_drift: OdometryDrift = field(default_factory=OdometryDrift)
 
     def __post_init__(self) -> None:
         for name in ("queue_frames", "window_frames", "lost_frames"):
@@ -87,6 +91,11 @@ class LiveParams:
             stall_s=live.stall_s,
             reconnect_backoff_s=tuple(live.reconnect_backoff_s),
             T_base_cam=np.array(cfg.camera.T_base_cam, dtype=np.float64).reshape(4, 4),
+            odometry_drift=OdometryDrift(
+                m_per_m=live.odometry_drift_m_per_m, rad_per_m=math.radians(live.odometry_heading_drift_deg_per_m),
+                rad_per_rad=live.odometry_heading_drift_per_turn,
+                rad_per_s=math.radians(live.odometry_heading_drift_deg_per_s),
+            ),
         )
         kwargs.update(overrides)
         return cls(**kwargs)
