@@ -14,7 +14,8 @@ freedom: mean 6, 95 % below 12.59, 99 % below 16.81. Side by side on the same po
 
     python benchmarks/pose_covariance.py [--noise kinect,tof,stereo] [--prepared DIR] [--query-seed N --map-seed N]
 
-``--prepared DIR`` takes the suites saved by ``reloc_accuracy.py --save-prepared DIR`` (``DIR/extraction_<noise>``);
+``--prepared DIR`` takes the suites saved by ``reloc_accuracy.py --save-prepared DIR`` (``DIR/extraction_<noise>``),
+given the same suite options (seeds, scenes, sizes: a suite saved with other ones is refused, naming them);
 without it each suite is prepared here (minutes a noise model; ``--quick`` for a small one).
 """
 
@@ -102,7 +103,7 @@ def main() -> int:
         quick_presets(ap, args, {"noise": "kinect", "queries": 3, "map_frames": 800, "scenes": "living_room,office"})
 
     from reloc._numba import warm_up
-    from reloc.evaluation.prepared_io import PreparedSuiteError, load_prepared
+    from reloc.evaluation.prepared_io import PreparedSuiteError, built_with, load_prepared, mismatch
     from reloc.evaluation.suite import SCENES, prepare_suite, suite_spec
     from reloc.mapping import MappingParams
     from reloc.matching import MatchingParams
@@ -115,15 +116,21 @@ def main() -> int:
     here = git_info()
     for noise in args.noise.split(","):
         t0 = time.perf_counter()
+        spec = suite_spec(noise, scenes=scenes, queries=args.queries, map_frames=args.map_frames, **seeds)
         if args.prepared is not None:
+            where = args.prepared / f"extraction_{noise}"
             try:
-                prepared, meta = load_prepared(args.prepared / f"extraction_{noise}")
+                prepared, meta = load_prepared(where)
             except PreparedSuiteError as exc:
                 ap.error(f"--prepared: {exc}")
+            # The suite asked for (seeds, scenes, sizes) must be the one saved: a replicate's suite loaded without
+            # its seeds would be reported as the tuned suite.
+            problems = mismatch(prepared, meta, spec, built_with(spec))
+            if problems:
+                ap.error(f"--prepared: {where} holds another suite than this command asks for: {'; '.join(problems)}")
             if meta.get("commit") != here["commit"]:
-                print(f"note: {args.prepared / f'extraction_{noise}'} was prepared at commit {meta.get('commit')}")
+                print(f"note: {where} was prepared at commit {meta.get('commit')}")
         else:
-            spec = suite_spec(noise, scenes=scenes, queries=args.queries, map_frames=args.map_frames, **seeds)
             prepared = prepare_suite(spec, MappingParams())
         prep_s = time.perf_counter() - t0
         got = normalized_errors(prepared, params)
