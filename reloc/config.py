@@ -540,6 +540,11 @@ class EvaluationConfig(_Section):
         "way (in conflict with the map) is rejected, however much else it matches (0 = off; off for a sensor noisier "
         "than occlusion_max_sensor_sigma_m).",
     )
+    conflict_vetoes_rivals: bool = Field(
+        True,
+        description="A rival pose with such a plane in conflict that explains less than min_explained_fraction of the "
+        "submap is no rival (that test would turn it away if it won).",
+    )
     min_uncontradicted_planes: int = Field(
         5, ge=0,
         description="Scene uniqueness counted net of the map's contradictions: the winning pose's matched planes "

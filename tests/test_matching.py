@@ -694,6 +694,44 @@ def test_a_refined_rival_with_as_much_evidence_makes_the_winner_ambiguous(living
     assert judge(tight, won) is won
 
 
+def test_a_rival_with_a_large_plane_in_conflict_that_explains_too_little_is_no_rival(living_relocalizer):
+    """Three poses of a view across the living room along x, weighed as modes of the decision over refined poses:
+    the truth; the view 0.6 m back (its far wall and a cabinet face land where the map knows nothing, 0.66 of the
+    submap explained); and 0.3 m forward, where the far wall (13 m^2) lies 0.3 m off the map's wall, in conflict
+    (0.71 explained). That would be turned away by the test of max_conflict_area_m2 if it won, and explains less
+    than min_explained_fraction: it is no rival. The one 0.6 m back may be right where the map is incomplete, and
+    stays one."""
+    from reloc.matching.relocalizer import _Hypotheses
+
+    rects = furnished_room("living")
+    T = look_at((1.0, 2.5, 1.4), (6.0, 2.5, 1.0))
+    sub = view_planes(rects, T)
+
+    def weighed(params):
+        reloc = Relocalizer(living_relocalizer.planes, params)
+        used, _, vs_ptr, vs_pts = reloc.prepare(sub)
+        Ts = [T.copy() for _ in range(3)]
+        Ts[1][0, 3] -= 0.6
+        Ts[2][0, 3] += 0.3
+        R, t = np.stack([x[:3, :3] for x in Ts]), np.stack([x[:3, 3] for x in Ts])
+        cand = np.tile(np.array([0, 1, 2, 0, 0, 0], np.int32), (3, 1))
+        hyps = _Hypotheses(len(used))
+        hyps.add(R, t, cand, reloc.verify(used, vs_ptr, vs_pts, R, t, cand, require_triplet=False))
+        tight = reloc._tightened(hyps, used, vs_ptr, vs_pts)
+        order = [int(np.argmin(np.linalg.norm(tight.t - x[:3, 3], axis=1))) for x in Ts]  # modes by pose
+        big = [float(used.areas[tight.state[k] == 2].max(initial=0.0)) for k in order]
+        return [tight.blocked()[k] for k in order], [tight.explained[k] for k in order], big
+
+    blocked, explained, big = weighed(MatchingParams())
+    assert blocked == [False, False, True]
+    assert explained[0] == pytest.approx(1.0) and 0.6 < explained[1] < 0.7 and 0.7 < explained[2] < 0.85
+    assert big[0] == big[1] == 0.0 and big[2] > 10.0
+    # Off; with the test of max_conflict_area_m2 off (a stereo camera's); or when the pose explains enough to win.
+    for params in (MatchingParams(conflict_vetoes_rivals=False), MatchingParams(max_conflict_area_m2=0.0),
+                   MatchingParams(min_explained_fraction=0.7, min_explained_known_fraction=0.7)):
+        assert weighed(params)[0] == [False, False, False]
+
+
 def test_free_fraction_of_an_unmatched_plane_matches_a_numpy_reference():
     # The map lacks the shelf's front; the mapping run saw empty space over part of where it stands. Verified at the
     # true pose, the view's shelf front is unmatched and reports the fraction of its samples in known free space.

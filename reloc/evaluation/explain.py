@@ -102,7 +102,9 @@ def explain_result(relocalizer: Relocalizer, submap: PlaneSet, res, trace: dict,
         role = "winner" if (decision.accepted and i == decision.best) else ("best" if i == decision.best else "")
         role += " (nearest the truth)" if i == nearest else ""
         if tight and blocked is not None and blocked[i]:
-            role = f"{role} (its cameras walk through a wall: no rival)".lstrip()
+            why = ("a large plane in conflict with the map, too little explained" if hyps.is_vetoed(i)
+                   else "its cameras walk through a wall")
+            role = f"{role} ({why}: no rival)".lstrip()
         scores = "%6.3f  %8.3f" % (modes["score"][modes["group"][i]], modes["rival"][modes["group"][i]]) if modes \
             else "%6s  %8s" % ("-", "-")
         out.append(f"  {i:2d}  {to_truth:>15s}  {int(hyps.n_matched[i]):6d}  {hyps.explained[i]:9.2f}  "

@@ -54,6 +54,7 @@ class MatchingParams:
     min_direction_support_m2: float = 0.4
     hidden_against_support: bool = True
     max_conflict_area_m2: float = 1.0
+    conflict_vetoes_rivals: bool = True
     min_uncontradicted_planes: int = 5
     min_explained_fraction: float = 0.85
     well_matched_planes: int = 0
@@ -204,6 +205,7 @@ class MatchingParams:
             min_direction_support_m2=e.min_direction_support_m2,
             hidden_against_support=e.hidden_against_support,
             max_conflict_area_m2=e.max_conflict_area_m2,
+            conflict_vetoes_rivals=e.conflict_vetoes_rivals,
             min_uncontradicted_planes=e.min_uncontradicted_planes,
             min_explained_fraction=e.min_explained_fraction,
             well_matched_planes=e.well_matched_planes,
