@@ -542,8 +542,8 @@ class EvaluationConfig(_Section):
     )
     conflict_vetoes_rivals: bool = Field(
         True,
-        description="A rival pose with such a plane in conflict that explains less than min_explained_fraction of the "
-        "submap is no rival (that test would turn it away if it won).",
+        description="A rival pose with such a plane in conflict (that test would turn it away if it won) or hidden "
+        "behind a map surface, explaining less than min_explained_fraction of the submap, is no rival.",
     )
     min_uncontradicted_planes: int = Field(
         5, ge=0,

@@ -694,6 +694,22 @@ def test_a_refined_rival_with_as_much_evidence_makes_the_winner_ambiguous(living
     assert judge(tight, won) is won
 
 
+def _weighed_modes(reloc, sub, Ts):
+    """Poses ``Ts`` of the view ``sub`` weighed as modes of the decision over refined poses (each verified, refined
+    and judged as ``locate`` does): per pose, whether it is no rival, its explained fraction and its state row."""
+    from reloc.matching.relocalizer import _Hypotheses
+
+    used, _, vs_ptr, vs_pts = reloc.prepare(sub)
+    R, t = np.stack([x[:3, :3] for x in Ts]), np.stack([x[:3, 3] for x in Ts])
+    cand = np.tile(np.array([0, 1, 2, 0, 0, 0], np.int32), (len(Ts), 1))
+    hyps = _Hypotheses(len(used))
+    hyps.add(R, t, cand, reloc.verify(used, vs_ptr, vs_pts, R, t, cand, require_triplet=False))
+    tight = reloc._tightened(hyps, used, vs_ptr, vs_pts)
+    order = [int(np.argmin(np.linalg.norm(tight.t - x[:3, 3], axis=1))) for x in Ts]  # modes by pose
+    return ([bool(tight.blocked()[k]) for k in order], [float(tight.explained[k]) for k in order],
+            [tight.state[k] for k in order], used)
+
+
 def test_a_rival_with_a_large_plane_in_conflict_that_explains_too_little_is_no_rival(living_relocalizer):
     """Three poses of a view across the living room along x, weighed as modes of the decision over refined poses:
     the truth; the view 0.6 m back (its far wall and a cabinet face land where the map knows nothing, 0.66 of the
@@ -701,35 +717,48 @@ def test_a_rival_with_a_large_plane_in_conflict_that_explains_too_little_is_no_r
     (0.71 explained). That would be turned away by the test of max_conflict_area_m2 if it won, and explains less
     than min_explained_fraction: it is no rival. The one 0.6 m back may be right where the map is incomplete, and
     stays one."""
-    from reloc.matching.relocalizer import _Hypotheses
-
     rects = furnished_room("living")
     T = look_at((1.0, 2.5, 1.4), (6.0, 2.5, 1.0))
     sub = view_planes(rects, T)
+    Ts = [T.copy() for _ in range(3)]
+    Ts[1][0, 3] -= 0.6
+    Ts[2][0, 3] += 0.3
 
     def weighed(params):
-        reloc = Relocalizer(living_relocalizer.planes, params)
-        used, _, vs_ptr, vs_pts = reloc.prepare(sub)
-        Ts = [T.copy() for _ in range(3)]
-        Ts[1][0, 3] -= 0.6
-        Ts[2][0, 3] += 0.3
-        R, t = np.stack([x[:3, :3] for x in Ts]), np.stack([x[:3, 3] for x in Ts])
-        cand = np.tile(np.array([0, 1, 2, 0, 0, 0], np.int32), (3, 1))
-        hyps = _Hypotheses(len(used))
-        hyps.add(R, t, cand, reloc.verify(used, vs_ptr, vs_pts, R, t, cand, require_triplet=False))
-        tight = reloc._tightened(hyps, used, vs_ptr, vs_pts)
-        order = [int(np.argmin(np.linalg.norm(tight.t - x[:3, 3], axis=1))) for x in Ts]  # modes by pose
-        big = [float(used.areas[tight.state[k] == 2].max(initial=0.0)) for k in order]
-        return [tight.blocked()[k] for k in order], [tight.explained[k] for k in order], big
+        return _weighed_modes(Relocalizer(living_relocalizer.planes, params), sub, Ts)
 
-    blocked, explained, big = weighed(MatchingParams())
+    blocked, explained, state, used = weighed(MatchingParams())
     assert blocked == [False, False, True]
     assert explained[0] == pytest.approx(1.0) and 0.6 < explained[1] < 0.7 and 0.7 < explained[2] < 0.85
+    big = [float(used.areas[s == 2].max(initial=0.0)) for s in state]
     assert big[0] == big[1] == 0.0 and big[2] > 10.0
     # Off; with the test of max_conflict_area_m2 off (a stereo camera's); or when the pose explains enough to win.
     for params in (MatchingParams(conflict_vetoes_rivals=False), MatchingParams(max_conflict_area_m2=0.0),
                    MatchingParams(min_explained_fraction=0.7, min_explained_known_fraction=0.7)):
         assert weighed(params)[0] == [False, False, False]
+
+
+def test_a_rival_with_a_large_plane_hidden_behind_the_map_that_explains_too_little_is_no_rival():
+    """A view along a corridor sees, through a doorway, a wall of the room beyond (0.56 m^2). In a map whose
+    corridor wall has no doorway there, that wall lies behind the map's wall from the camera: hidden, evidence
+    against the pose that no more complete map could remove. With max_conflict_area_m2 at 0.5 m^2 the pose is no
+    rival when it explains less than min_explained_fraction (0.95 here: it explains 0.94), and is one at 0.85."""
+    from reloc.evaluation.synthetic import Rect, room
+
+    corridor = [r for r in room(30.0, 2.0, 2.7) if r.normal[1] < 0.5]  # all but the y = 0 wall
+    solid = [Rect((15.0, 0.0, 1.35), (0, 1, 0), (1, 0, 0), 15.0, 1.35)]
+    cabinet = [Rect((11.5, 1.7, 0.6), (1, 0, 0), (0, 1, 0), 0.3, 0.6)]
+    beyond = Rect((12.3, -1.0, 1.0), (1, 0, 0), (0, 1, 0), 0.35, 0.4)
+    T = look_at((14.0, 1.5, 1.3), (11.0, 0.0, 1.0))
+    sub = view_planes(corridor + solid + cabinet + [beyond], T)
+    planes = scene_planes(corridor + solid + cabinet)
+    for fraction, no_rival in ((0.95, True), (0.85, False)):
+        params = MatchingParams(max_conflict_area_m2=0.5, min_explained_fraction=fraction)
+        blocked, explained, state, used = _weighed_modes(Relocalizer(planes, params), sub, [T])
+        hidden = used.areas[state[0] == 6]
+        assert len(hidden) == 1 and hidden[0] == pytest.approx(0.56, abs=0.01)
+        assert not np.any(state[0] == 2) and 0.85 <= explained[0] < 0.95
+        assert blocked == [no_rival]
 
 
 def test_free_fraction_of_an_unmatched_plane_matches_a_numpy_reference():

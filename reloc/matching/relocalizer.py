@@ -501,8 +501,9 @@ class Relocalizer:
         ``decision_max_offset_m``, it loses them, while the true pose keeps them. Decided on refined poses, the true
         pose stands out where the raw triplet poses tie. With ``path_test``, each mode is also marked when the
         submap's camera path walks through a wall of the map under it (``impossible``; such a mode is no rival).
-        With ``conflict_vetoes_rivals``, a mode that the test of ``max_conflict_area_m2`` would turn away if it won
-        and that explains less than ``min_explained_fraction`` of the submap is no rival either (``vetoed``).
+        With ``conflict_vetoes_rivals``, a mode with a plane of ``max_conflict_area_m2`` or more in conflict with the
+        map (that test would turn it away if it won) or hidden behind a map surface, and that explains less than
+        ``min_explained_fraction`` of the submap, is no rival either (``vetoed``).
         """
         p = self.params
         order = np.argsort(-match_quality(hyps.n_matched, hyps.explained), kind="stable").astype(np.int64)
@@ -521,17 +522,9 @@ class Relocalizer:
         # Whether a mode competes and may win is judged at the final tolerances, as the winner will be; the
         # evidence it carries (matches, overlaps, conflicts) at the sharper decision offset.
         v = self.verify(used, vs_ptr, vs_pts, R, t, cand, require_triplet=False, tight=True)
-        vetoed = np.zeros(len(leaders), dtype=bool)
-        if p.conflict_vetoes_rivals and p.max_conflict_area_m2 > 0:
-            # A mode with a plane of max_conflict_area_m2 or more in conflict at the final tolerances (those of
-            # _conclude's test) could not be accepted if it won, whatever the parts of the map it lands on that the
-            # map does not know: it is no rival. An office view's true pose lost to a place 2 m along, credited for
-            # two walls unknown to the map there (0.49 of the true pose's 0.72) while a third wall, 4.4 m^2, lay off a
-            # map wall. Only when it also explains too little to win: a quarter turn in the symmetric room that
-            # explains 0.91 with one wall in conflict is a twin that a map fused a little differently in each quarter
-            # tells apart, not the scene; vetoed, the view (labelled ambiguous) was answered.
-            big = np.where(v.state == 2, used.areas[None, :], 0.0).max(axis=1, initial=0.0)
-            vetoed = (big >= p.max_conflict_area_m2) & (v.explained < p.min_explained_fraction)
+        # The largest plane of each mode in conflict at the final tolerances (those of _conclude's test).
+        contradicted = np.where(v.state == 2, used.areas[None, :], 0.0).max(axis=1, initial=0.0)
+        final_explained = v.explained
         sharp = self.verify(used, vs_ptr, vs_pts, R, t, cand, require_triplet=False, tight=True,
                             max_offset_m=p.decision_max_offset_m)
         v = replace(sharp, n_matched=v.n_matched, explained=v.explained, unknown=v.unknown, passed=v.passed)
@@ -541,6 +534,19 @@ class Relocalizer:
             exact = p.hidden_rival_credit and p.optimistic_rivals and self._map_knows_free_space
             frac = self.mark_hidden(used, vs_ptr, vs_pts, R, t, v.state, exact=exact)
             hidden = frac[v.passed] if exact else None
+            contradicted = np.maximum(contradicted, np.where(v.state == 6, used.areas[None, :], 0.0).max(
+                axis=1, initial=0.0))
+        vetoed = np.zeros(len(leaders), dtype=bool)
+        if p.conflict_vetoes_rivals and p.max_conflict_area_m2 > 0:
+            # A mode with a plane of max_conflict_area_m2 or more in conflict with the map (or hidden behind a map
+            # surface from the submap's cameras) is contradicted where no more complete map could help it; in
+            # conflict, _conclude's test would turn it away if it won. Such a mode that also explains too little
+            # of the submap to win is no rival. An office view's true pose lost to a place 2 m along, credited for
+            # two walls unknown to the map there (0.49 of the true pose's 0.72) while a third wall, 4.4 m^2, lay off
+            # a map wall. A mode that explains enough stays a rival: a quarter turn in the symmetric room that
+            # explains 0.91 with one wall in conflict is a twin that a map fused a little differently in each
+            # quarter tells apart, not the scene; vetoed, the view (labelled ambiguous) was answered.
+            vetoed = (contradicted >= p.max_conflict_area_m2) & (final_explained < p.min_explained_fraction)
         blocked = self.path_blocked(used, R, t) if p.path_test else np.zeros(len(leaders), dtype=bool)
         out = _Hypotheses(len(used))
         out.add(R, t, cand, v)
