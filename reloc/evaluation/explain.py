@@ -102,7 +102,7 @@ def explain_result(relocalizer: Relocalizer, submap: PlaneSet, res, trace: dict,
         role = "winner" if (decision.accepted and i == decision.best) else ("best" if i == decision.best else "")
         role += " (nearest the truth)" if i == nearest else ""
         if tight and blocked is not None and blocked[i]:
-            why = ("a large plane in conflict with the map, too little explained" if hyps.is_vetoed(i)
+            why = ("a large plane in conflict with or hidden behind the map, too little explained" if hyps.is_vetoed(i)
                    else "its cameras walk through a wall")
             role = f"{role} ({why}: no rival)".lstrip()
         scores = "%6.3f  %8.3f" % (modes["score"][modes["group"][i]], modes["rival"][modes["group"][i]]) if modes \

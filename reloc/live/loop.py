@@ -575,7 +575,8 @@ class LiveLoop:
             verified = self._verified
             if verified is not None and T_odom_cam is not None and verified[1] is not None and verified[3] == odo_kind:
                 T_pred = predict_T_map_cam(verified[0], verified[1], T_odom_cam)
-                cov_pred = self._tracked_covariance(verified, T_odom_cam, T_pred, frame.stamp_ns)
+                if self.bridge is not None:  # only the serial link sends it
+                    cov_pred = self._tracked_covariance(verified, T_odom_cam, T_pred, frame.stamp_ns)
                 if self.map_planes is not None:
                     frac = explained_fraction(planes, T_pred, self.map_planes,
                                               max_angle_rad=self.params.check_max_angle_rad,

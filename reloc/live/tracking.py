@@ -17,8 +17,8 @@ __all__ = ["OdometryDrift", "odometry_step", "is_jump", "predict_T_map_cam", "ex
 class OdometryDrift:
     """How far an odometry may have drifted since a reference pose, one sigma, growing linearly with the motion
     (the systematic errors dominate: a wheel radius or gyro scale a per cent off, a gyro bias), for a robot that moves
-    on a level floor: heading ``rad_per_rad`` of the angle turned plus ``rad_per_m`` of the path plus ``rad_per_s``
-    of the time; position ``m_per_m`` of the path plus the heading error over half the path."""
+    on a level floor: heading ``rad_per_rad`` of the angle turned, ``rad_per_m`` of the path and ``rad_per_s`` of the
+    time; position ``m_per_m`` of the path and the heading error over half the path; each added in quadrature."""
 
     m_per_m: float = 0.025
     rad_per_m: float = 0.0

@@ -189,8 +189,9 @@ class _Hypotheses:
         # the raw hypotheses of the modes with no least-squares pose (whether or not their raw pose held).
         self.leader: np.ndarray | None = None
         self.unrefined: np.ndarray | None = None
-        # With path_test: the raw hypotheses of the modes whose camera path walks through a wall of the map; with
-        # conflict_vetoes_rivals, of those with a large plane in conflict with the map (see Relocalizer._tightened).
+        # With path_test: the raw hypotheses of the modes whose camera path walks through a wall of the map. With
+        # conflict_vetoes_rivals (vetoed): of those with a large plane in conflict with the map or hidden behind it
+        # that explain too little to win (see Relocalizer._tightened). Neither is a rival.
         self.impossible: np.ndarray | None = None
         self.vetoed: np.ndarray | None = None
         # With hidden_rival_credit (and occlusion): per mode, the share of each plane the map hides from the
@@ -207,7 +208,8 @@ class _Hypotheses:
 
     def is_vetoed(self, i: int) -> bool:
         """Whether mode ``i`` of a decision over refined poses is no rival for a large plane in conflict with the
-        map while it explains too little of the submap to win (see :meth:`Relocalizer._tightened`)."""
+        map or hidden behind it while it explains too little of the submap to win (see
+        :meth:`Relocalizer._tightened`)."""
         return self.vetoed is not None and bool(np.isin(self.leader[i], self.vetoed))
 
     def is_refined(self, i: int) -> bool:
