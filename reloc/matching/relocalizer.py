@@ -33,6 +33,7 @@ from reloc.matching.scoring import (
     distinct_from,
     explains_enough,
     in_conflict,
+    largest_area,
     match_quality,
     ratio,
 )
@@ -525,8 +526,7 @@ class Relocalizer:
         # evidence it carries (matches, overlaps, conflicts) at the sharper decision offset.
         v = self.verify(used, vs_ptr, vs_pts, R, t, cand, require_triplet=False, tight=True)
         # The largest plane of each mode in conflict at the final tolerances (those of _conclude's test).
-        contradicted = np.where(v.state == 2, used.areas[None, :], 0.0).max(axis=1, initial=0.0)
-        final_explained = v.explained
+        contradicted = largest_area(v.state, used.areas, 2)
         sharp = self.verify(used, vs_ptr, vs_pts, R, t, cand, require_triplet=False, tight=True,
                             max_offset_m=p.decision_max_offset_m)
         v = replace(sharp, n_matched=v.n_matched, explained=v.explained, unknown=v.unknown, passed=v.passed)
@@ -536,8 +536,7 @@ class Relocalizer:
             exact = p.hidden_rival_credit and p.optimistic_rivals and self._map_knows_free_space
             frac = self.mark_hidden(used, vs_ptr, vs_pts, R, t, v.state, exact=exact)
             hidden = frac[v.passed] if exact else None
-            contradicted = np.maximum(contradicted, np.where(v.state == 6, used.areas[None, :], 0.0).max(
-                axis=1, initial=0.0))
+            contradicted = np.maximum(contradicted, largest_area(v.state, used.areas, 6))
         vetoed = np.zeros(len(leaders), dtype=bool)
         if p.conflict_vetoes_rivals and p.max_conflict_area_m2 > 0:
             # A mode with a plane of max_conflict_area_m2 or more in conflict with the map (or hidden behind a map
@@ -548,7 +547,7 @@ class Relocalizer:
             # a map wall. A mode that explains enough stays a rival: a quarter turn in the symmetric room that
             # explains 0.91 with one wall in conflict is a twin that a map fused a little differently in each
             # quarter tells apart, not the scene; vetoed, the view (labelled ambiguous) was answered.
-            vetoed = (contradicted >= p.max_conflict_area_m2) & (final_explained < p.min_explained_fraction)
+            vetoed = (contradicted >= p.max_conflict_area_m2) & (v.explained < p.min_explained_fraction)
         blocked = self.path_blocked(used, R, t) if p.path_test else np.zeros(len(leaders), dtype=bool)
         out = _Hypotheses(len(used))
         out.add(R, t, cand, v)
@@ -829,7 +828,7 @@ class Relocalizer:
             # Evidence against the pose that no amount of evidence for it outweighs: a large plane of the view where
             # the map has a surface facing the same way, but centimetres off it (a wall of an office view placed
             # in the apartment, 2.03 m^2, with 5 planes matched and 0.85 of the view explained).
-            worst = float(used.areas[v.state[0] == 2].max(initial=0.0))
+            worst = float(largest_area(v.state[:1], used.areas, 2)[0])
             if worst >= p.max_conflict_area_m2:
                 return _rejected(f"contradicted by the map: a plane of {worst:.2f} m^2 lies off a map surface facing "
                                  f"the same way (at most {p.max_conflict_area_m2} m^2 may)", counts, timings)

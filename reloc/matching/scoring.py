@@ -24,7 +24,7 @@ from reloc.matching.params import MatchingParams
 
 __all__ = [
     "Decision", "frequency_weights", "pose_density", "decide", "distinct_from", "explains_enough", "in_conflict",
-    "match_quality",
+    "largest_area", "match_quality",
 ]
 
 
@@ -51,6 +51,12 @@ def in_conflict(state: np.ndarray) -> np.ndarray:
     the same way (2), or hidden behind a map surface from the submap's cameras (6)."""
     state = np.asarray(state)
     return (state == 2) | (state == 6)
+
+
+def largest_area(state: np.ndarray, areas: np.ndarray, code: int) -> np.ndarray:
+    """(H,) the area of each pose's largest submap plane whose verification ``state`` (H, S) is ``code`` (0 where
+    none is); ``areas`` (S,)."""
+    return np.where(np.asarray(state) == code, np.asarray(areas)[None, :], 0.0).max(axis=1, initial=0.0)
 
 
 def explains_enough(explained, unknown, state, params: MatchingParams, n_matched=None, areas=None):
