@@ -503,6 +503,14 @@ class EvaluationConfig(_Section):
         "them lost to look-alikes (the suite's stereo, 7.3 cm). Kinect (1.3 cm) and ToF (0.9 cm) class sensors keep "
         "it.",
     )
+    occlusion_from_behind: bool = Field(
+        True,
+        description="Map surfaces hide from behind too: a line of sight from a camera more than occlusion_erode_m "
+        "behind a map plane (on the side its mapping cameras never saw) to a point more than occlusion_margin_m in "
+        "front of it is blocked where the plane has surface all around the crossing. A look-alike pose that puts "
+        "the cameras outside a room sees through its walls from their backs. Only with a map that knows its free "
+        "space (built maps do).",
+    )
     path_test: bool = Field(
         True,
         description="In the decision over refined poses, a pose under which the submap's camera path (its window's "

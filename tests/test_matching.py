@@ -870,6 +870,51 @@ def test_a_plane_behind_a_map_wall_is_hidden_but_not_one_seen_through_a_doorway(
     assert states["solid, seen from beyond"] == (1, 0.0)
 
 
+def test_a_plane_seen_through_the_back_of_a_map_surface_is_hidden_when_the_camera_stands_well_behind_it():
+    """A look-alike pose can put the cameras outside a room, behind its wall as the map knows it (a face seen from
+    the room only), looking through that wall at what they saw. In a 3 x 3 m room, a 2 m wide partition of the map
+    at y = 2 m, seen from y < 2 only (normal -y), stands between a camera at y = 2.8 m and a panel 1.6 m beyond it,
+    turned toward the camera, that the map knows nothing of. With ``occlusion_from_behind`` the panel is hidden
+    (state 6); without it, unknown (state 1). A camera within ``occlusion_erode_m`` behind such a surface is not
+    enough: a map plane smeared by flying pixels (a door jamb 1 m deep in a ToF map) stands 5-10 cm in front of
+    cameras that saw past its true edge. Nor is a map that knows no free space: there, what the rivals this removes
+    held back is a winner nothing else contradicts (an office view in a living room)."""
+    from dataclasses import replace
+
+    from reloc.evaluation.synthetic import Rect, room
+    from reloc.mapping import PlaneMap
+
+    corridor = room(3.0, 3.0, 2.7)
+    c, s = math.cos(math.radians(35.0)), math.sin(math.radians(35.0))
+    panel = Rect((1.5, 0.4, 1.0), (s, c, 0), (c, -s, 0), 0.5, 0.5)  # turned 35 deg from the wall, toward the camera
+    voxel = 0.15
+    g = np.stack(np.meshgrid(*(np.arange(voxel / 2, 2.0, voxel) for _ in range(2)), np.arange(0.3, 2.4, voxel),
+                             indexing="ij"), axis=-1).reshape(-1, 3)
+    # Free space the mapping run saw along the x = 0 wall: the panel lands where the map knows nothing.
+    free = np.unique(K.cell_keys(np.ascontiguousarray(g[(g[:, 0] > 0.3) & (g[:, 0] < 0.6) & (g[:, 1] > 0.3)]), voxel))
+    got = {}
+    for y_partition in (2.0, 2.65):  # 0.8 m and 0.15 m in front of the camera
+        partition = Rect((1.5, y_partition, 1.1), (0, -1, 0), (1, 0, 0), 1.0, 1.1)
+        T = look_at((1.5, 2.8, 1.3), (1.5, 0.0, 1.0))
+        sub = view_planes(corridor + [panel], T)  # what the camera saw: no partition
+        planes = scene_planes(corridor + [partition])
+        for behind, free_keys in ((False, free), (True, free), (True, free[:0])):
+            pm = PlaneMap(planes, np.ones(len(planes), np.int64), free_keys=free_keys, free_voxel_m=voxel)
+            reloc = Relocalizer(pm, replace(MatchingParams(), occlusion_from_behind=behind))
+            used, _, vs_ptr, vs_pts = reloc.prepare(sub)
+            gap = np.linalg.norm(used.centroids @ T[:3, :3].T + T[:3, 3] - np.array(panel.center), axis=1)
+            j = int(np.argmin(gap))
+            assert gap[j] < 0.05 and j >= 3  # not in the candidate triplet
+            v = _verify_at(reloc, used, vs_ptr, vs_pts, T, tight=True)
+            assert v.state[0, j] == 1  # unknown to the map
+            frac = reloc.mark_hidden(used, vs_ptr, vs_pts, T[None, :3, :3], T[None, :3, 3], v.state)
+            got[y_partition, behind, len(free_keys) > 0] = (int(v.state[0, j]), round(float(frac[0, j]), 2))
+            assert not np.any(np.delete(v.state[0], j) == 6)
+    assert got[2.0, True, True][0] == 6 and got[2.0, True, True][1] >= 0.9
+    assert got[2.0, False, True] == got[2.0, True, False] == (1, 0.0)
+    assert got[2.65, True, True] == got[2.65, False, True] == (1, 0.0)
+
+
 def test_the_exact_hidden_share_of_a_jamb_half_inside_a_wall():
     """A door jamb 1.2 m deep (normal +x) placed across the solid y = 0 wall of a corridor, half of it behind the
     wall: as a twin pose puts a jamb it saw in a doorway. Fewer than half of its samples are hidden (pulled 30 % of

@@ -1140,10 +1140,13 @@ def _crossing(i, ax, ay, az, bx, by, bz, sa, sb, map_centroids, map_radii):
 
 @njit
 def _hidden_from(cx, cy, cz, px, py, pz, nx, ny, nz, map_normals, map_offsets, map_centroids, map_radii, bases,
-                 surf_ptr, surf_keys, cell, margin, erode):
+                 surf_ptr, surf_keys, cell, margin, erode, behind):
     """Whether the line of sight from the camera ``c`` to the point ``p`` (of a plane with normal ``n``) crosses a
     map surface first: a map plane with ``c`` in front of it and ``p`` more than ``margin`` behind it, crossed
-    where that plane has surface all around (the crossing and the four points ``erode`` from it along the plane)."""
+    where that plane has surface all around (the crossing and the four points ``erode`` from it along the plane).
+    With ``behind``, also a map plane with ``c`` more than ``erode`` behind it and ``p`` more than ``margin`` in
+    front: a wall hides from its back too. Nearer than ``erode`` behind it, a camera may be on the far side of a
+    plane the map smeared past its edge (flying pixels at a jamb)."""
     for i in range(map_normals.shape[0]):
         mx = map_normals[i, 0]
         my = map_normals[i, 1]
@@ -1151,10 +1154,11 @@ def _hidden_from(cx, cy, cz, px, py, pz, nx, ny, nz, map_normals, map_offsets, m
         if mx * nx + my * ny + mz * nz >= _HIDDEN_PARALLEL:
             continue
         sc = mx * cx + my * cy + mz * cz + map_offsets[i]
-        if sc <= 0.05:
-            continue
         sp = mx * px + my * py + mz * pz + map_offsets[i]
-        if sp >= -margin:
+        if sc > 0.05:
+            if sp >= -margin:
+                continue
+        elif not (behind and sc < -erode and sp > margin):
             continue
         inside, x, y, z = _crossing(i, cx, cy, cz, px, py, pz, sc, sp, map_centroids, map_radii)
         if not inside:
@@ -1177,14 +1181,15 @@ def _hidden_from(cx, cy, cz, px, py, pz, nx, ny, nz, map_normals, map_offsets, m
 
 @njit
 def mark_hidden(R, t, state, sub_normals, vs_ptr, vs_points, views, map_normals, map_offsets, map_centroids,
-                map_radii, bases, surf_ptr, surf_keys, cell, margin, erode, min_fraction, exact, out_frac):
+                map_radii, bases, surf_ptr, surf_keys, cell, margin, erode, min_fraction, exact, out_frac, behind):
     """Planes unknown to the map (``state`` 1) under each pose ``(R[h], t[h])`` that the map says the cameras could
     not have seen: at least ``min_fraction`` of their verification samples, moved toward their centre to
     ``HIDDEN_SHRINK`` of their distance from it (off the borders that lines of sight graze), are hidden behind a map
-    surface from every camera position of ``views`` (the submap's viewpoints, its frame). Their state becomes 6 in
-    place; ``out_frac`` (H, S) float32 gets the hidden fraction of each plane looked at (0 elsewhere; for a plane
-    not marked, counted only until the samples left could no longer make ``min_fraction``, unless ``exact``: then
-    over all its samples). Returns the planes marked.
+    surface from every camera position of ``views`` (the submap's viewpoints, its frame; with ``behind``, from
+    either side of the surface, :func:`_hidden_from`). Their state becomes 6 in place; ``out_frac`` (H, S) float32
+    gets the hidden fraction of each plane looked at (0 elsewhere; for a plane not marked, counted only until the
+    samples left could no longer make ``min_fraction``, unless ``exact``: then over all its samples). Returns the
+    planes marked.
 
     A look-alike pose puts what the cameras saw through a doorway, or the side of a door jamb, behind a wall of the
     map, where the map knows nothing (it never saw behind the wall) but where nothing could have been seen either.
@@ -1240,7 +1245,8 @@ def mark_hidden(R, t, state, sub_normals, vs_ptr, vs_points, views, map_normals,
                 every = True
                 for v in range(V):
                     if not _hidden_from(vx[v], vy[v], vz[v], px, py, pz, nx, ny, nz, map_normals, map_offsets,
-                                        map_centroids, map_radii, bases, surf_ptr, surf_keys, cell, margin, erode):
+                                        map_centroids, map_radii, bases, surf_ptr, surf_keys, cell, margin, erode,
+                                        behind):
                         every = False
                         break
                 if every:
@@ -1552,7 +1558,7 @@ def _warmup() -> None:
     sptr3 = np.array([0, 1, 1, 1], np.int64)
     hid = np.ones((1, S), np.int8)
     mark_hidden(Rs, ts, hid, normals, vs_ptr, pts, np.zeros((1, 3)), normals, offsets, centroids, radii, bases,
-                sptr3, skeys, 0.1, 0.04, 0.3, 0.5, True, np.empty((1, S), np.float32))
+                sptr3, skeys, 0.1, 0.04, 0.3, 0.5, True, np.empty((1, S), np.float32), True)
     path_blocked(Rs, ts, np.array([[0.0, 0.0, 2.0], [0.0, 0.0, -2.0]]), 0.3, normals, offsets, centroids, radii,
                  bases, sptr3, skeys, 0.1, 0.05, 0.5, np.array([0.0, 0.0, 1.0]), np.empty(1, np.bool_))
     dens = np.empty(1)

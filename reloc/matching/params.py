@@ -73,6 +73,7 @@ class MatchingParams:
     occlusion_erode_m: float = 0.3
     occlusion_min_fraction: float = 0.5
     occlusion_max_sensor_sigma_m: float = 0.02
+    occlusion_from_behind: bool = True
     path_test: bool = True
     path_min_step_m: float = 0.3
     path_margin_m: float = 0.05
@@ -224,6 +225,7 @@ class MatchingParams:
             occlusion_erode_m=e.occlusion_erode_m,
             occlusion_min_fraction=e.occlusion_min_fraction,
             occlusion_max_sensor_sigma_m=e.occlusion_max_sensor_sigma_m,
+            occlusion_from_behind=e.occlusion_from_behind,
             path_test=e.path_test,
             path_min_step_m=e.path_min_step_m,
             path_margin_m=e.path_margin_m,

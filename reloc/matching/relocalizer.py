@@ -352,7 +352,8 @@ class Relocalizer:
     def mark_hidden(self, used: PlaneSet, vs_ptr, vs_pts, R, t, state: np.ndarray, exact: bool = False) -> np.ndarray:
         """Mark the planes of ``used`` unknown to the map under ``(R, t)`` (``state`` 1, changed in place to 6) that
         the map says the submap's cameras could not have seen (:func:`reloc.matching._kernels.mark_hidden`; the
-        cameras are ``used.viewpoints``, or the origin of the latest camera's frame). Returns the (H, S) hidden
+        cameras are ``used.viewpoints``, or the origin of the latest camera's frame; map surfaces hide from their
+        backs too with ``occlusion_from_behind`` and a map that knows its free space). Returns the (H, S) hidden
         fractions (of a plane not marked, exact only with ``exact``, else a lower bound)."""
         p = self.params
         ix = self.index
@@ -361,7 +362,7 @@ class Relocalizer:
         K.mark_hidden(np.ascontiguousarray(R), np.ascontiguousarray(t), state, used.normals, vs_ptr, vs_pts,
                       np.ascontiguousarray(views), ix.normals, ix.offsets, ix.centroids, ix.radii, ix.bases,
                       ix.surf_ptr, ix.surf_keys, SURFACE_CELL_M, p.occlusion_margin_m, p.occlusion_erode_m,
-                      p.occlusion_min_fraction, exact, frac)
+                      p.occlusion_min_fraction, exact, frac, p.occlusion_from_behind and self._map_knows_free_space)
         return frac
 
     def path_blocked(self, used: PlaneSet, R, t) -> np.ndarray:
