@@ -871,14 +871,14 @@ def test_a_plane_behind_a_map_wall_is_hidden_but_not_one_seen_through_a_doorway(
 
 
 def test_a_plane_seen_through_the_back_of_a_map_surface_is_hidden_when_the_camera_stands_well_behind_it():
-    """A look-alike pose can put the cameras outside a room, behind its wall as the map knows it (a face seen from
-    the room only), looking through that wall at what they saw. In a 3 x 3 m room, a 2 m wide partition of the map
-    at y = 2 m, seen from y < 2 only (normal -y), stands between a camera at y = 2.8 m and a panel 1.6 m beyond it,
-    turned toward the camera, that the map knows nothing of. With ``occlusion_from_behind`` the panel is hidden
-    (state 6); without it, unknown (state 1). A camera within ``occlusion_erode_m`` behind such a surface is not
-    enough: a map plane smeared by flying pixels (a door jamb 1 m deep in a ToF map) stands 5-10 cm in front of
-    cameras that saw past its true edge. Nor is a map that knows no free space: there, what the rivals this removes
-    held back is a winner nothing else contradicts (an office view in a living room)."""
+    """A look-alike pose can put the cameras outside a room, behind its wall as the map knows it (a face seen from the
+    room only), looking through that wall at what they saw. In a 3 x 3 m room, a 2 m wide partition of the map at y =
+    2 m, seen from y < 2 only (normal -y), stands between a camera at y = 2.8 m and a panel 1.6 m beyond it, turned
+    toward the camera, that the map knows nothing of. With ``occlusion_from_behind`` the panel is hidden (state 6);
+    without it, unknown (state 1). A camera within ``occlusion_erode_m`` behind such a surface is not enough: a map
+    plane smeared by flying pixels (a door jamb 1 m deep in a ToF map) stood 6 cm in front of cameras that saw past
+    its true edge (the tuned suite's ToF apartment/robot/6). Nor is a map that knows no free space: there, what the
+    rivals this removes held back is a winner nothing else contradicts (an office view in a living room)."""
     from dataclasses import replace
 
     from reloc.evaluation.synthetic import Rect, room
