@@ -58,10 +58,10 @@ def paper_settings(params):
     """The baseline: the paper's evaluation and decision rules only, on the same index and transforms (none of our
     additions: no free space, explained fraction, direction support, twin probe, decision over refined poses, lower
     projection share or wider refinement angle for noisy sensors, fallback refinement angle, refinement at the
-    planes' centroids, or conflict tests)."""
+    planes' centroids, conflict tests, or facets left out of the explained fraction)."""
     return replace(
         params, max_sphere_gap_m=1.0, gap_tolerance_m=1e3, extent_tolerance_m=1e3, min_explained_fraction=0.0,
-        min_explained_known_fraction=0.0, well_matched_planes=0, noisy_well_matched_planes=0,
+        min_explained_known_fraction=0.0, facet_max_area_m2=0.0, well_matched_planes=0, noisy_well_matched_planes=0,
         min_competitor_fraction=0.0, free_space=False, min_direction_support_m2=0.0, hidden_against_support=False,
         max_conflict_area_m2=0.0, min_uncontradicted_planes=0,
         min_overlap=0.3, noisy_min_projection_ratio=1.0, noisy_refine_max_angle_rad=params.refine_max_angle_rad,

@@ -416,6 +416,13 @@ class EvaluationConfig(_Section):
         "centimetres off a map surface does not decide (0: every plane counts, as before 2026-11-30; over the tuned "
         "suite and eight held-out replicates 11 true poses more and no false positive, 1.0 added two).",
     )
+    facet_max_area_m2: float = Field(
+        1.0, ge=0,
+        description="A facet of curved clutter under this area (a plane that touches another one 8-60 deg away, the "
+        "two bending away from each other: a plant pot, a chair's back) in conflict with the map is left out when "
+        "judging whether a pose explains enough of the submap: extraction cuts a curved surface into facets that "
+        "follow the viewpoint, so the map holds other facets of it. Rivals are judged as before. 0 turns this off.",
+    )
     refine_iterations: int = Field(2, ge=0, le=10, description="Least-squares refinements of the winning pose.")
     refine_at_centroids: bool = Field(
         True,

@@ -1238,6 +1238,75 @@ def test_a_small_plane_in_conflict_spoils_the_rest_unknown_only_when_small_plane
     assert explains_enough(explained, unknown, state, large).tolist() == [False, False]  # no areas: every plane
 
 
+def test_facets_of_a_curved_surface_are_told_from_corners_bevels_and_jambs():
+    from reloc.matching.scoring import facet_mask
+
+    # 0-2: three facets of a vertical cylinder of radius 0.3 m (normals 30 deg apart, outwards); 3: a plane of
+    # 1.5 m^2 touching facet 2 at 30 deg; 4, 5, 6: a room's two walls at x = 0 and y = 0 (normals into the room) and
+    # a bevel across their corner (45 deg to each, bending towards them: concave); 7: a door jamb at 90 deg to wall 5.
+    ang = np.radians([0.0, 30.0, 60.0, 90.0])
+    normals = [[math.cos(a), math.sin(a), 0.0] for a in ang]
+    centroids = [[5.0 + 0.3 * math.cos(a), 5.0 + 0.3 * math.sin(a), 0.4] for a in ang]
+    normals += [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [math.sqrt(0.5), math.sqrt(0.5), 0.0], [1.0, 0.0, 0.0]]
+    centroids += [[0.0, 2.0, 1.2], [2.0, 0.0, 1.2], [0.1, 0.1, 1.2], [3.0, 0.05, 1.0]]
+    areas = np.array([0.3, 0.4, 0.6, 1.5, 8.0, 8.0, 0.3, 0.2])
+    touching = [(0, 1), (1, 2), (2, 3), (4, 6), (5, 6), (4, 5), (5, 7)]
+    d = np.full((8, 8), 1.0)
+    for j, k in touching:
+        d[j, k] = d[k, j] = 0.05
+    np.fill_diagonal(d, 0.0)
+    got = facet_mask(np.array(normals), np.array(centroids), areas, d, 1.0)
+    assert np.flatnonzero(got).tolist() == [0, 1, 2]  # the large plane, the bevel and the jamb are no facets
+    assert np.flatnonzero(facet_mask(np.array(normals), np.array(centroids), areas, d, 0.5)).tolist() == [0, 1]
+    far = d.copy()
+    far[0, 1] = far[1, 0] = 0.2  # 0 no longer touches 1 (over FACET_TOUCH_M)
+    assert np.flatnonzero(facet_mask(np.array(normals), np.array(centroids), areas, far, 1.0)).tolist() == [1, 2]
+    assert not facet_mask(np.array(normals), np.array(centroids), areas, d, 0.0).any()
+
+
+def test_a_facet_in_conflict_with_the_map_does_not_keep_a_pose_from_explaining_enough():
+    # As in apartment/robot/5 of the tuned suite (Kinect noise): the true pose explained 0.82 of its submap, short
+    # of 0.85, for a facet of a plant pot (0.37 m^2) a few centimetres off the map's other facets of it, while a
+    # plane of 1.07 m^2 in conflict kept it from "the rest unknown to the map". Weights are square roots of areas,
+    # as in the verification: pose 0 matches 16 and 9 m^2 (weights 4 and 3) of 8.73, 0.80; left out, the facet
+    # (0.49 m^2, weight 0.7) leaves 7 of 8.03, 0.87. Pose 1: 7 of 9.8 matched (0.71) and 2 unknown, with a facet of
+    # 0.64 m^2 in conflict (over known_conflict_min_area_m2) that alone spoils the rest unknown; left out, 0.78 and
+    # 0.22. Pose 2 is pose 0 with the same plane in conflict but not a facet.
+    from dataclasses import replace
+
+    from reloc.matching.scoring import explains_enough
+
+    areas = np.array([16.0, 9.0, 1.07, 0.49, 4.0, 0.64])
+    match = np.array([[0, 1, -1, -1, -1, -1], [0, 1, -1, -1, -1, -1], [0, 1, -1, -1, -1, -1]], np.int32)
+    state = np.array([[0, 0, 2, 2, 4, 4], [0, 0, 4, 4, 1, 2], [0, 0, 2, 2, 4, 4]], np.int8)
+    areas_of = [np.array([16.0, 9.0, 1.07, 0.49]), np.array([16.0, 9.0, 4.0, 0.64])]
+    w = [np.sqrt(a) for a in areas_of]
+    explained = np.array([7.0 / w[0].sum(), 7.0 / w[1].sum(), 7.0 / w[0].sum()])
+    unknown = np.array([0.0, 2.0 / w[1].sum(), 0.0])
+    # Each pose is judged over its own four planes (the others absent: too small to count and unmatched).
+    rows = [[0, 1, 2, 3], [0, 1, 4, 5], [0, 1, 2, 3]]
+    facets = np.array([False, False, False, True, False, True])
+    p = MatchingParams()
+    assert p.facet_max_area_m2 > 0.64 and p.known_conflict_min_area_m2 <= 0.64
+    got, without = [], []
+    for h, r in enumerate(rows):
+        a, st, m = areas[r], state[h, r], match[h, r]
+        f = facets[r] if h < 2 else np.zeros(4, bool)
+        got.append(bool(explains_enough(explained[h], unknown[h], st, p, None, a, m, f)))
+        without.append(bool(explains_enough(explained[h], unknown[h], st, p, None, a, m, None)))
+    assert [round(float(x), 3) for x in explained] == [0.801, 0.714, 0.801]
+    assert got == [True, True, False]
+    assert without == [False, False, False]
+    # A small plane that matched counts in the total, one that did not (0.29 m^2) does not: 7.5 of 8.2 (0.915),
+    # without the facet all of it (0.995 if the unmatched small plane counted).
+    st, m = np.array([0, 0, 2, 4, 4], np.int8), np.array([0, 1, -1, 2, -1], np.int32)
+    a = np.array([16.0, 9.0, 0.49, 0.25, 0.29])
+    e = 7.5 / (4.0 + 3.0 + 0.7 + 0.5)
+    strict = replace(p, min_explained_fraction=0.998, min_explained_known_fraction=0.0)
+    assert explains_enough(e, 0.0, st, strict, None, a, m, np.array([False, False, True, False, False]))
+    assert not explains_enough(e, 0.0, st, strict, None, a, m, None)
+
+
 def test_a_decision_whose_poses_all_lose_their_evidence_to_conflicts_reports_normalized_scores():
     # Two poses 2 m apart: each matches plane 0 (weight 1/2: it matches at both), is in conflict with the map on
     # plane 1 (weight 1) and leaves plane 2 where the map knows nothing. No pose keeps any evidence (every weight

@@ -63,6 +63,7 @@ class MatchingParams:
     noisy_well_matched_explained_fraction: float = 0.75
     min_explained_known_fraction: float = 0.7
     known_conflict_min_area_m2: float = 0.5
+    facet_max_area_m2: float = 1.0
     min_competitor_fraction: float = 0.6
     min_counted_area_m2: float = 0.3
     free_space: bool = True
@@ -215,6 +216,7 @@ class MatchingParams:
             noisy_well_matched_explained_fraction=e.noisy_well_matched_explained_fraction,
             min_explained_known_fraction=e.min_explained_known_fraction,
             known_conflict_min_area_m2=e.known_conflict_min_area_m2,
+            facet_max_area_m2=e.facet_max_area_m2,
             min_competitor_fraction=e.min_competitor_fraction,
             min_counted_area_m2=e.min_counted_area_m2,
             free_space=e.free_space,

@@ -32,6 +32,7 @@ from reloc.matching.scoring import (
     decide,
     distinct_from,
     explains_enough,
+    facet_mask,
     in_conflict,
     largest_area,
     match_quality,
@@ -174,7 +175,10 @@ class _Hypotheses:
 
     _FIELDS = ("match", "proj", "over", "state", "free_frac", "n_matched", "explained", "unknown")
 
-    def __init__(self, S: int):
+    def __init__(self, S: int, facets: np.ndarray | None = None):
+        # Per submap plane: a facet of curved clutter (scoring.facet_mask), whose conflicts with the map do not keep
+        # a pose from explaining enough; None when facet_max_area_m2 is 0.
+        self.facets = facets
         self.R = np.zeros((0, 3, 3))
         self.t = np.zeros((0, 3))
         self.cand = np.zeros((0, 6), np.int32)
@@ -550,7 +554,7 @@ class Relocalizer:
             # quarter tells apart, not the scene; vetoed, the view (labelled ambiguous) was answered.
             vetoed = (contradicted >= p.max_conflict_area_m2) & (v.explained < p.min_explained_fraction)
         blocked = self.path_blocked(used, R, t) if p.path_test else np.zeros(len(leaders), dtype=bool)
-        out = _Hypotheses(len(used))
+        out = _Hypotheses(len(used), hyps.facets)
         out.add(R, t, cand, v)
         out.leader = leaders[v.passed]
         out.unrefined = leaders[~refined]
@@ -643,6 +647,13 @@ class Relocalizer:
                         f"{hyps.explained[a]:.2f} of the submap, as well as the winner, has no least-squares pose to "
                         "be decided on", -1, decision.score, decision.runner_up_score, decision.n_modes)
 
+    def _facets(self, used: PlaneSet, distances: np.ndarray) -> np.ndarray | None:
+        """Which planes of ``used`` are facets of curved clutter (:func:`reloc.matching.scoring.facet_mask`, from
+        ``distances`` between their verification samples), or None with ``facet_max_area_m2`` 0."""
+        if self.params.facet_max_area_m2 <= 0:
+            return None
+        return facet_mask(used.normals, used.centroids, used.areas, distances, self.params.facet_max_area_m2)
+
     def _decide(self, hyps, used: PlaneSet, min_matched: int, timings: dict, modes: dict | None = None) -> Decision:
         """The decision over every hypothesis so far; its weights and density times go to ``timings``, its modes to
         ``modes`` when given (see :func:`decide`)."""
@@ -650,7 +661,7 @@ class Relocalizer:
         decision = decide(hyps.R, hyps.t, hyps.match, hyps.over, hyps.n_matched, hyps.explained, self.params,
                           min_matched=min_matched, state=hyps.state, areas=used.areas, free_frac=hyps.free_frac,
                           unknown=hyps.unknown, blocked=hyps.blocked(), hidden_frac=hyps.hidden_frac,
-                          optimistic=self._map_knows_free_space, timings_ms=part, modes=modes)
+                          optimistic=self._map_knows_free_space, timings_ms=part, modes=modes, facets=hyps.facets)
         timings["decide.weights"] += part.get("weights", 0.0)
         timings["decide.density"] += part.get("density", 0.0)
         return decision
@@ -701,7 +712,7 @@ class Relocalizer:
             return finish(_rejected(
                 too_few_planes_reason(S, len(self.index), min_matched), counts, timings
             ))
-        hyps = _Hypotheses(S)
+        hyps = _Hypotheses(S, self._facets(used, distances))
         coarse = judged = hyps
         decision = Decision(False, "no hypothesis passed verification", -1, 0.0, 0.0, 0)
         rounds = range(min(p.initial_planes, S), S + 1) if p.incremental else [S]
@@ -805,7 +816,7 @@ class Relocalizer:
                 break
             v = self.verify(used, vs_ptr, vs_pts, T_new[None, :3, :3], T_new[None, :3, 3], cand_row,
                             require_triplet=False)
-            if not self._holds(v, min_matched, used.areas):
+            if not self._holds(v, min_matched, used.areas, hyps.facets):
                 why = f"{int(v.n_matched[0])} planes, {v.explained[0]:.2f} of the submap at the refined pose"
                 break
             T, match_row, proj_row, explained = T_new, v.match[0], v.proj[0], float(v.explained[0])
@@ -821,7 +832,7 @@ class Relocalizer:
         v = self.verify(used, vs_ptr, vs_pts, T[None, :3, :3], T[None, :3, 3], cand_row, require_triplet=False,
                         tight=True)
         timings["refine"] = (time.perf_counter() - t0) * 1e3
-        if not self._holds(v, min_matched, used.areas):
+        if not self._holds(v, min_matched, used.areas, hyps.facets):
             return _rejected(f"pose does not hold at tight tolerances: {int(v.n_matched[0])} planes, "
                              f"{v.explained[0]:.2f} of the submap", counts, timings)
         match_row, explained = v.match[0], float(v.explained[0])
@@ -866,11 +877,12 @@ class Relocalizer:
             hidden = state[0] == 6
         return support_per_direction(used, v.match[0], p.min_counted_area_m2, hidden)
 
-    def _holds(self, v: Verification, min_matched: int, areas: np.ndarray) -> bool:
+    def _holds(self, v: Verification, min_matched: int, areas: np.ndarray, facets: np.ndarray | None) -> bool:
         """Whether the single pose verified in ``v`` passes, explains enough and matches ``min_matched`` planes
-        (``areas``: of the submap planes ``v`` judged)."""
+        (``areas``: of the submap planes ``v`` judged; ``facets``: which of them are facets of curved clutter, see
+        :func:`reloc.matching.scoring.explains_enough`)."""
         return bool(v.passed[0] and explains_enough(v.explained[0], v.unknown[0], v.state[0], self.params,
-                                                    v.n_matched[0], areas)
+                                                    v.n_matched[0], areas, v.match[0], facets)
                     and v.n_matched[0] >= min_matched)
 
     def confirm(self, submap: PlaneSet, T_map_cam) -> RelocResult:
@@ -919,7 +931,7 @@ class Relocalizer:
                 f"pose does not verify: {int(v.n_matched[0])} planes matched{in_free}, {v.explained[0]:.2f} of the "
                 "submap explained", counts, timings,
             ))
-        hyps = _Hypotheses(S)
+        hyps = _Hypotheses(S, self._facets(used, sample_distances(vs_ptr, vs_pts)))
         hyps.add(R, t, cand, v)
         t0 = time.perf_counter()
         decision, judged = self._judge(hyps, used, vs_ptr, vs_pts, min_matched, timings)

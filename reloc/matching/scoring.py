@@ -23,9 +23,16 @@ from reloc.matching import _kernels as K
 from reloc.matching.params import MatchingParams
 
 __all__ = [
-    "Decision", "frequency_weights", "pose_density", "decide", "distinct_from", "explains_enough", "in_conflict",
-    "largest_area", "match_quality",
+    "Decision", "frequency_weights", "pose_density", "decide", "distinct_from", "explains_enough", "facet_mask",
+    "in_conflict", "largest_area", "match_quality",
 ]
+
+#: Two planes that touch (verification samples within FACET_TOUCH_M) with normals FACET_MIN_ANGLE_DEG to
+#: FACET_MAX_ANGLE_DEG apart, bending away from each other, are facets of one curved surface (see
+#: :func:`facet_mask`). A room's corner bends the other way, a door jamb meets its wall at 90 deg.
+FACET_MIN_ANGLE_DEG = 8.0
+FACET_MAX_ANGLE_DEG = 60.0
+FACET_TOUCH_M = 0.15
 
 
 @dataclass(frozen=True)
@@ -59,7 +66,30 @@ def largest_area(state: np.ndarray, areas: np.ndarray, code: int) -> np.ndarray:
     return np.where(np.asarray(state) == code, np.asarray(areas)[None, :], 0.0).max(axis=1, initial=0.0)
 
 
-def explains_enough(explained, unknown, state, params: MatchingParams, n_matched=None, areas=None):
+def facet_mask(normals: np.ndarray, centroids: np.ndarray, areas: np.ndarray, distances: np.ndarray,
+               max_area_m2: float) -> np.ndarray:
+    """(S,) bool: the planes under ``max_area_m2`` that are facets of a curved surface seen from outside (a plant
+    pot, a chair's back, a bin): each touches another plane of the set (``distances`` (S, S), the smallest distance
+    between their verification samples, at most :data:`FACET_TOUCH_M`) whose normal is :data:`FACET_MIN_ANGLE_DEG`
+    to :data:`FACET_MAX_ANGLE_DEG` away, the two bending away from each other (``(c_k - c_j) . (n_k - n_j) > 0``,
+    as around a convex object; inside a bevelled room corner they bend towards each other). Extraction cuts a curved
+    surface into facets whose orientation follows where it was seen from, so a map seen from elsewhere holds other
+    facets of it, a few degrees and centimetres off."""
+    n = np.asarray(normals, dtype=np.float64)
+    c = np.asarray(centroids, dtype=np.float64)
+    S = len(n)
+    if S < 2 or max_area_m2 <= 0:
+        return np.zeros(S, dtype=bool)
+    cos = n @ n.T
+    bend = np.einsum("jki,jki->jk", c[None, :, :] - c[:, None, :], n[None, :, :] - n[:, None, :])
+    pair = ((cos >= math.cos(math.radians(FACET_MAX_ANGLE_DEG))) & (cos <= math.cos(math.radians(FACET_MIN_ANGLE_DEG)))
+            & (bend > 0) & (np.asarray(distances) <= FACET_TOUCH_M))
+    np.fill_diagonal(pair, False)
+    return (np.asarray(areas) < max_area_m2) & pair.any(axis=1)
+
+
+def explains_enough(explained, unknown, state, params: MatchingParams, n_matched=None, areas=None, match=None,
+                    facets=None):
     """Whether each pose explains enough of the submap to be accepted (bool, shape of ``explained``).
 
     It explains ``min_explained_fraction``; or, with ``min_explained_known_fraction`` > 0, it explains at least that
@@ -71,9 +101,25 @@ def explains_enough(explained, unknown, state, params: MatchingParams, n_matched
     rivals get the same credit (optimistic rivals) and the density margin still decides. With ``n_matched`` (the
     matched planes, shape of ``explained``) and ``well_matched_planes`` > 0, a pose matching that many planes or more
     also explains enough at ``well_matched_explained_fraction`` (for noisy sensors, see
-    :func:`reloc.matching.params.scaled_to_sensor`).
+    :func:`reloc.matching.params.scaled_to_sensor`). With ``facets`` (S,) (:func:`facet_mask`), ``match`` (the map
+    plane per submap plane, shape of ``state``) and ``areas``, a facet of curved clutter in conflict with the map
+    (``facet_max_area_m2`` > 0) is left out of the submap, as a plane too small to count is: the fractions are taken
+    of the rest, and it does not spoil "the rest unknown to the map".
     """
-    explained = np.asarray(explained)
+    explained = np.asarray(explained, dtype=np.float64)
+    forgiven = None
+    if facets is not None and match is not None and state is not None and areas is not None and np.any(facets):
+        # The verification's weights (square roots of the areas) over the planes that count: those of at least
+        # min_counted_area_m2, and smaller ones that matched.
+        a = np.asarray(areas, dtype=np.float64)
+        w = np.sqrt(a)
+        counts = (a >= params.min_counted_area_m2) | (np.asarray(match) >= 0)
+        forgiven = in_conflict(np.asarray(state)) & np.asarray(facets)
+        total = np.sum(np.where(counts, w, 0.0), axis=-1)
+        rest = total - np.sum(np.where(forgiven, w, 0.0), axis=-1)
+        scale = np.where(rest > 0, total / np.where(rest > 0, rest, 1.0), 1.0)
+        explained = explained * scale
+        unknown = None if unknown is None else np.asarray(unknown) * scale
     ok = explained >= params.min_explained_fraction
     if params.well_matched_planes > 0 and n_matched is not None:
         ok |= (np.asarray(n_matched) >= params.well_matched_planes) & (
@@ -81,6 +127,8 @@ def explains_enough(explained, unknown, state, params: MatchingParams, n_matched
     if params.min_explained_known_fraction > 0 and unknown is not None and state is not None:
         st = np.asarray(state)
         bad = in_conflict(st)
+        if forgiven is not None:
+            bad &= ~forgiven
         if params.known_conflict_min_area_m2 > 0 and areas is not None:
             bad = bad & (np.asarray(areas) >= params.known_conflict_min_area_m2)
         clean = ~np.any(bad, axis=-1)
@@ -157,6 +205,7 @@ def decide(
     optimistic: bool = True,
     timings_ms: dict | None = None,
     modes: dict | None = None,
+    facets: np.ndarray | None = None,
 ) -> Decision:
     """Pick the best pose among verified hypotheses, or reject with a reason.
 
@@ -177,7 +226,9 @@ def decide(
     density (``"density"``, Eq. 14) are added to it. ``modes``: when given, it receives the poses' modes, for
     explaining the decision: ``group`` (H,) each hypothesis's mode, ``score`` (G,) the density at each mode (the
     winner's is the decision's score) and ``rival`` (G,) the density each mode has as a rival (with the credit of
-    ``optimistic_rivals``; the runner-up is the largest of the modes distinct from the winner).
+    ``optimistic_rivals``; the runner-up is the largest of the modes distinct from the winner). ``facets`` (S,):
+    the submap's facets of curved clutter (:func:`facet_mask`), whose conflicts do not keep a pose from explaining
+    enough to win (:func:`explains_enough`); its density and the rivals' are not changed.
     """
     H = R.shape[0]
     if H == 0:
@@ -230,7 +281,8 @@ def decide(
         timings_ms["weights"] = timings_ms.get("weights", 0.0) + (t1 - t0) * 1e3
         timings_ms["density"] = timings_ms.get("density", 0.0) + (t2 - t1) * 1e3
     need = params.min_matched_planes if min_matched is None else min_matched
-    eligible = (n_matched >= need) & explains_enough(explained, unknown, state, params, n_matched, areas)
+    eligible = (n_matched >= need) & explains_enough(explained, unknown, state, params, n_matched, areas, match,
+                                                     facets)
     if not eligible.any():
         a = int(np.argmax(quality))
         return Decision(
