@@ -931,7 +931,7 @@ class Relocalizer:
                 f"pose does not verify: {int(v.n_matched[0])} planes matched{in_free}, {v.explained[0]:.2f} of the "
                 "submap explained", counts, timings,
             ))
-        hyps = _Hypotheses(S, self._facets(used, sample_distances(vs_ptr, vs_pts)))
+        hyps = _Hypotheses(S, self._facets(used, sample_distances(vs_ptr, vs_pts)) if p.facet_max_area_m2 > 0 else None)
         hyps.add(R, t, cand, v)
         t0 = time.perf_counter()
         decision, judged = self._judge(hyps, used, vs_ptr, vs_pts, min_matched, timings)

@@ -101,10 +101,11 @@ def explains_enough(explained, unknown, state, params: MatchingParams, n_matched
     rivals get the same credit (optimistic rivals) and the density margin still decides. With ``n_matched`` (the
     matched planes, shape of ``explained``) and ``well_matched_planes`` > 0, a pose matching that many planes or more
     also explains enough at ``well_matched_explained_fraction`` (for noisy sensors, see
-    :func:`reloc.matching.params.scaled_to_sensor`). With ``facets`` (S,) (:func:`facet_mask`), ``match`` (the map
-    plane per submap plane, shape of ``state``) and ``areas``, a facet of curved clutter in conflict with the map
-    (``facet_max_area_m2`` > 0) is left out of the submap, as a plane too small to count is: the fractions are taken
-    of the rest, and it does not spoil "the rest unknown to the map".
+    :func:`reloc.matching.params.scaled_to_sensor`). With ``facets`` (S,) (:func:`facet_mask`; the callers pass
+    None when ``facet_max_area_m2`` is 0), ``match`` (the map plane per submap plane, shape of ``state``) and
+    ``areas``, a facet of curved clutter in conflict with the map is left out of the submap, as a plane too small to
+    count is: the fractions are taken of the rest, and it does not spoil "the rest unknown to the map". (Rejection
+    reasons and traces report the verification's fractions, over the whole submap.)
     """
     explained = np.asarray(explained, dtype=np.float64)
     forgiven = None
