@@ -1276,24 +1276,21 @@ def test_a_facet_in_conflict_with_the_map_does_not_keep_a_pose_from_explaining_e
 
     from reloc.matching.scoring import explains_enough
 
-    areas = np.array([16.0, 9.0, 1.07, 0.49, 4.0, 0.64])
-    match = np.array([[0, 1, -1, -1, -1, -1], [0, 1, -1, -1, -1, -1], [0, 1, -1, -1, -1, -1]], np.int32)
-    state = np.array([[0, 0, 2, 2, 4, 4], [0, 0, 4, 4, 1, 2], [0, 0, 2, 2, 4, 4]], np.int8)
-    areas_of = [np.array([16.0, 9.0, 1.07, 0.49]), np.array([16.0, 9.0, 4.0, 0.64])]
-    w = [np.sqrt(a) for a in areas_of]
-    explained = np.array([7.0 / w[0].sum(), 7.0 / w[1].sum(), 7.0 / w[0].sum()])
-    unknown = np.array([0.0, 2.0 / w[1].sum(), 0.0])
-    # Each pose is judged over its own four planes (the others absent: too small to count and unmatched).
-    rows = [[0, 1, 2, 3], [0, 1, 4, 5], [0, 1, 2, 3]]
-    facets = np.array([False, False, False, True, False, True])
+    # Per pose: the areas of its four planes, their states and map planes, and which of them are facets.
+    matched = np.array([0, 1, -1, -1], np.int32)
+    poses = [
+        (np.array([16.0, 9.0, 1.07, 0.49]), np.array([0, 0, 2, 2], np.int8), [False, False, False, True]),
+        (np.array([16.0, 9.0, 4.0, 0.64]), np.array([0, 0, 1, 2], np.int8), [False, False, False, True]),
+        (np.array([16.0, 9.0, 1.07, 0.49]), np.array([0, 0, 2, 2], np.int8), [False, False, False, False]),
+    ]
+    explained = np.array([7.0 / np.sqrt(a).sum() for a, _, _ in poses])
+    unknown = np.array([0.0, 2.0 / np.sqrt(poses[1][0]).sum(), 0.0])
     p = MatchingParams()
     assert p.facet_max_area_m2 > 0.64 and p.known_conflict_min_area_m2 <= 0.64
     got, without = [], []
-    for h, r in enumerate(rows):
-        a, st, m = areas[r], state[h, r], match[h, r]
-        f = facets[r] if h < 2 else np.zeros(4, bool)
-        got.append(bool(explains_enough(explained[h], unknown[h], st, p, None, a, m, f)))
-        without.append(bool(explains_enough(explained[h], unknown[h], st, p, None, a, m, None)))
+    for h, (a, st, f) in enumerate(poses):
+        got.append(bool(explains_enough(explained[h], unknown[h], st, p, None, a, matched, np.array(f))))
+        without.append(bool(explains_enough(explained[h], unknown[h], st, p, None, a, matched, None)))
     assert [round(float(x), 3) for x in explained] == [0.801, 0.714, 0.801]
     assert got == [True, True, False]
     assert without == [False, False, False]

@@ -647,11 +647,14 @@ class Relocalizer:
                         f"{hyps.explained[a]:.2f} of the submap, as well as the winner, has no least-squares pose to "
                         "be decided on", -1, decision.score, decision.runner_up_score, decision.n_modes)
 
-    def _facets(self, used: PlaneSet, distances: np.ndarray) -> np.ndarray | None:
-        """Which planes of ``used`` are facets of curved clutter (:func:`reloc.matching.scoring.facet_mask`, from
-        ``distances`` between their verification samples), or None with ``facet_max_area_m2`` 0."""
+    def _facets(self, used: PlaneSet, vs_ptr, vs_pts, distances: np.ndarray | None = None) -> np.ndarray | None:
+        """Which planes of ``used`` are facets of curved clutter (:func:`reloc.matching.scoring.facet_mask`, from the
+        ``distances`` between their verification samples, computed here when not given), or None with
+        ``facet_max_area_m2`` 0."""
         if self.params.facet_max_area_m2 <= 0:
             return None
+        if distances is None:
+            distances = sample_distances(vs_ptr, vs_pts)
         return facet_mask(used.normals, used.centroids, used.areas, distances, self.params.facet_max_area_m2)
 
     def _decide(self, hyps, used: PlaneSet, min_matched: int, timings: dict, modes: dict | None = None) -> Decision:
@@ -712,7 +715,7 @@ class Relocalizer:
             return finish(_rejected(
                 too_few_planes_reason(S, len(self.index), min_matched), counts, timings
             ))
-        hyps = _Hypotheses(S, self._facets(used, distances))
+        hyps = _Hypotheses(S, self._facets(used, vs_ptr, vs_pts, distances))
         coarse = judged = hyps
         decision = Decision(False, "no hypothesis passed verification", -1, 0.0, 0.0, 0)
         rounds = range(min(p.initial_planes, S), S + 1) if p.incremental else [S]
@@ -931,7 +934,7 @@ class Relocalizer:
                 f"pose does not verify: {int(v.n_matched[0])} planes matched{in_free}, {v.explained[0]:.2f} of the "
                 "submap explained", counts, timings,
             ))
-        hyps = _Hypotheses(S, self._facets(used, sample_distances(vs_ptr, vs_pts)) if p.facet_max_area_m2 > 0 else None)
+        hyps = _Hypotheses(S, self._facets(used, vs_ptr, vs_pts))
         hyps.add(R, t, cand, v)
         t0 = time.perf_counter()
         decision, judged = self._judge(hyps, used, vs_ptr, vs_pts, min_matched, timings)

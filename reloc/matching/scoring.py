@@ -108,14 +108,15 @@ def explains_enough(explained, unknown, state, params: MatchingParams, n_matched
     reasons and traces report the verification's fractions, over the whole submap.)
     """
     explained = np.asarray(explained, dtype=np.float64)
+    conflict = None if state is None else in_conflict(state)
     forgiven = None
-    if facets is not None and match is not None and state is not None and areas is not None and np.any(facets):
+    if facets is not None and match is not None and conflict is not None and areas is not None and np.any(facets):
         # The verification's weights (square roots of the areas) over the planes that count: those of at least
         # min_counted_area_m2, and smaller ones that matched.
         a = np.asarray(areas, dtype=np.float64)
         w = np.sqrt(a)
         counts = (a >= params.min_counted_area_m2) | (np.asarray(match) >= 0)
-        forgiven = in_conflict(np.asarray(state)) & np.asarray(facets)
+        forgiven = conflict & np.asarray(facets)
         total = np.sum(np.where(counts, w, 0.0), axis=-1)
         rest = total - np.sum(np.where(forgiven, w, 0.0), axis=-1)
         scale = np.where(rest > 0, total / np.where(rest > 0, rest, 1.0), 1.0)
@@ -126,10 +127,7 @@ def explains_enough(explained, unknown, state, params: MatchingParams, n_matched
         ok |= (np.asarray(n_matched) >= params.well_matched_planes) & (
             explained >= params.well_matched_explained_fraction)
     if params.min_explained_known_fraction > 0 and unknown is not None and state is not None:
-        st = np.asarray(state)
-        bad = in_conflict(st)
-        if forgiven is not None:
-            bad &= ~forgiven
+        bad = conflict if forgiven is None else conflict & ~forgiven
         if params.known_conflict_min_area_m2 > 0 and areas is not None:
             bad = bad & (np.asarray(areas) >= params.known_conflict_min_area_m2)
         clean = ~np.any(bad, axis=-1)
