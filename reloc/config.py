@@ -638,6 +638,13 @@ class EvaluationConfig(_Section):
         0.5, ge=0, description="With equal_rivals, how much less evidence such a pose may have and still count (as "
         "unrefined_rival_margin: a stereo view's twin one room along won by 0.03 of the submap explained).",
     )
+    stronger_rival_below_explained: float = Field(
+        0.95, ge=0,
+        description="With tight_decision and the incremental input, a winner found before every submap plane was fed "
+        "and explaining less than this fraction of the submap is held against one more round of triplets over the "
+        "planes not yet fed: a refined pose elsewhere that matches more planes (less those in conflict) and explains "
+        "as much rejects the query as ambiguous. 0 turns this off; above 1 every such winner is checked.",
+    )
     rival_unknown_weight: float = Field(
         0.75, ge=0, le=1,
         description="With optimistic_rivals, how much of a match an unknown plane of a rival counts for (needs a "

@@ -37,7 +37,7 @@ __all__ = ["profile", "SequentialPipeline", "TABLE8_ROWS", "PAPER_TABLE8_MS", "t
 # a test keeps them equal).
 EXTRACT_STAGES = ("backproject", "voxelize", "fit", "weight", "merge", "refine", "finalize")
 RELOC_STAGES = ("prepare", "select", "transform", "verify", "decide", "decide.weights", "decide.density",
-                "decide.tighten", "decide.probe", "refine")
+                "decide.tighten", "decide.probe", "decide.stronger", "refine")
 
 # The paper's Table 8 rows and the profiler stages each one sums (stages are disjoint; their parts are not summed).
 TABLE8_ROWS: dict[str, tuple[str, ...]] = {
@@ -57,7 +57,7 @@ _DETAILS = {
     "local_observation": [],
     "localization": ["reloc.prepare", "reloc.select", "reloc.transform", "reloc.refine"],
     "pose_likelihood": ["reloc.verify", "reloc.decide", "reloc.decide.weights", "reloc.decide.density",
-                        "reloc.decide.tighten", "reloc.decide.probe"],
+                        "reloc.decide.tighten", "reloc.decide.probe", "reloc.decide.stronger"],
 }
 
 

@@ -98,6 +98,7 @@ class MatchingParams:
     unrefined_rival_margin: float = 0.5
     equal_rivals: bool = True
     equal_rival_margin: float = 0.5
+    stronger_rival_below_explained: float = 0.95
     rival_unknown_weight: float = 0.75
     noisy_rival_unknown_weight: float = 0.5
     hidden_rival_credit: bool = True
@@ -250,6 +251,7 @@ class MatchingParams:
             unrefined_rival_margin=e.unrefined_rival_margin,
             equal_rivals=e.equal_rivals,
             equal_rival_margin=e.equal_rival_margin,
+            stronger_rival_below_explained=e.stronger_rival_below_explained,
             rival_unknown_weight=e.rival_unknown_weight,
             noisy_rival_unknown_weight=e.noisy_rival_unknown_weight,
             hidden_rival_credit=e.hidden_rival_credit,
