@@ -680,16 +680,23 @@ def test_a_stronger_pose_among_the_planes_not_fed_turns_an_early_winner_away():
             reloc = Relocalizer(world, replace(MatchingParams(), probe_twins=False,
                                                stronger_rival_below_explained=below))
             if blind:
-                first_rounds = reloc._round
+                rounds, check, checking = reloc._round, reloc._stronger_rival, []
 
-                def blind_to_the_first_room(used, *args, first_rounds=first_rounds):
-                    found = first_rounds(used, *args)
-                    if found is None or args[5] == len(used):  # args[5]: k, the planes fed
+                def blind_to_the_first_room(*args, rounds=rounds, checking=checking):
+                    found = rounds(*args)
+                    if found is None or checking:
                         return found
                     R, t, cand, v = found
                     return R, t, cand, replace(v, passed=v.passed & (t[:, 0] > 6.5))
 
-                reloc._round = blind_to_the_first_room
+                def the_last_round_sees_it(*args, check=check, checking=checking):
+                    checking.append(True)
+                    try:
+                        return check(*args)
+                    finally:
+                        checking.clear()
+
+                reloc._round, reloc._stronger_rival = blind_to_the_first_room, the_last_round_sees_it
             right = wrong = stronger = checked = 0
             for T, sub in zip(Ts, subs):
                 res = reloc.locate(sub)

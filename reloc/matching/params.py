@@ -99,6 +99,7 @@ class MatchingParams:
     equal_rivals: bool = True
     equal_rival_margin: float = 0.5
     stronger_rival_below_explained: float = 0.95
+    stronger_rival_min_area_m2: float = 0.5
     rival_unknown_weight: float = 0.75
     noisy_rival_unknown_weight: float = 0.5
     hidden_rival_credit: bool = True
@@ -252,6 +253,7 @@ class MatchingParams:
             equal_rivals=e.equal_rivals,
             equal_rival_margin=e.equal_rival_margin,
             stronger_rival_below_explained=e.stronger_rival_below_explained,
+            stronger_rival_min_area_m2=e.stronger_rival_min_area_m2,
             rival_unknown_weight=e.rival_unknown_weight,
             noisy_rival_unknown_weight=e.noisy_rival_unknown_weight,
             hidden_rival_credit=e.hidden_rival_credit,
