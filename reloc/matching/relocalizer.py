@@ -729,7 +729,7 @@ class Relocalizer:
         return R, t, cand, v
 
     def _stronger_rival(self, used: PlaneSet, vs_ptr, vs_pts, facing, distances, sub_ext, prev: int, hyps, judged,
-                        decision: Decision, counts: dict, timings: dict) -> Decision:
+                        decision: Decision, counts: dict) -> Decision:
         """``decision`` (accepted before the incremental input fed every submap plane), or a rejection when the
         planes not yet fed give a stronger pose elsewhere.
 
@@ -753,8 +753,9 @@ class Relocalizer:
         later = later[used.areas[later] >= self.params.stronger_rival_min_area_m2]
         if not len(later):
             return decision
+        # Its selection, transforms and verification count in decide.stronger, not in the stages of the rounds.
         found = self._round(used, vs_ptr, vs_pts, facing, distances, sub_ext, np.concatenate([np.arange(prev), later]),
-                            prev, counts, timings)
+                            prev, counts, {"select": 0.0, "transform": 0.0, "verify": 0.0})
         if found is None:
             return decision
         R, t, cand, v = found
@@ -857,7 +858,7 @@ class Relocalizer:
             # The rounds stopped at the first pose accepted: the planes not fed may still hold a stronger pose.
             t0 = time.perf_counter()
             decision = self._stronger_rival(used, vs_ptr, vs_pts, facing, distances, sub_ext, prev, hyps, judged,
-                                            decision, counts, timings)
+                                            decision, counts)
             timings["decide.stronger"] += (time.perf_counter() - t0) * 1e3
             timings["decide"] += (time.perf_counter() - t0) * 1e3
             if trace is not None:
