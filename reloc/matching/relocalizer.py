@@ -745,7 +745,7 @@ class Relocalizer:
         27 saved runs (docs/BENCHMARKS.md, "A stronger pose among the planes not fed"), more planes alone also
         turned away 4 true poses, twins one room along or half a turn round matching 1-3 planes more but
         explaining less. Only for a winner that explains less than ``stronger_rival_below_explained``: on those
-        runs every winner checked gives the same outcomes, at 1.3-2.2 ms more in the median instead of 0.2-0.8.
+        runs every winner checked gives the same outcomes, at 0.9 ms more in the median of a run (0.2-1.4).
         Planes under ``stronger_rival_min_area_m2`` are not fed: on a map of 2,000 planes one view's small planes put
         two million map triplets and 0.14 s into the round, 6 ms without them.
         """
