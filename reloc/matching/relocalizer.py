@@ -730,22 +730,21 @@ class Relocalizer:
 
     def _stronger_rival(self, used: PlaneSet, vs_ptr, vs_pts, facing, distances, sub_ext, prev: int, hyps, judged,
                         decision: Decision, counts: dict) -> Decision:
-        """``decision`` (accepted before the incremental input fed every submap plane), or a rejection when the
-        planes not yet fed give a stronger pose elsewhere.
+        """``decision`` (accepted before the incremental input fed every submap plane), or a rejection when the planes
+        not yet fed give a stronger pose elsewhere.
 
         The rounds stop at the first pose accepted, so a place that only the later planes' triplets reach is never
         weighed. The rest of the planes of at least ``stronger_rival_min_area_m2`` are fed in one more round; its
         hypotheses that match more map planes than any so far are refined and held to the final tolerances
-        (:meth:`_tightened`). A pose among them that then
-        matches more planes net of those in conflict than the winner and explains at least as much of the submap,
-        at another place and not walking through a wall, turns the answer into a rejection: the winner was the
-        first pose found, not the best. A stereo apartment view was answered 6.0 m off with 7 planes matched and
-        0.89 of its submap explained, its triplets all drawn from the first five planes, one of them a 3 m^2 wall
-        the map lacks at the true pose; the true pose matches 11 and explains 0.91. Both tests are needed: on the
-        27 saved runs (docs/BENCHMARKS.md, "A stronger pose among the planes not fed"), more planes alone also
-        turned away 4 true poses, twins one room along or half a turn round matching 1-3 planes more but
-        explaining less. Only for a winner that explains less than ``stronger_rival_below_explained``: on those
-        runs every winner checked gives the same outcomes, at 0.9 ms more in the median of a run (0.2-1.4).
+        (:meth:`_tightened`). A pose among them that then matches more planes net of those in conflict than the winner
+        and explains at least as much of the submap, at another place and not walking through a wall, turns the answer
+        into a rejection: the winner was the first pose found, not the best. A stereo apartment view was answered 6.0
+        m off with 7 planes matched and 0.89 of its submap explained, its triplets all drawn from the first five
+        planes, one of them a 3 m^2 wall the map lacks at the true pose; the true pose matches 11 and explains 0.91.
+        Both tests are needed: on the 27 saved runs (docs/BENCHMARKS.md, "A stronger pose among the planes not fed"),
+        more planes alone also turned away 4 true poses, twins one room along or half a turn round matching 1-3 planes
+        more but explaining less. Only for a winner that explains less than ``stronger_rival_below_explained``: on
+        those runs every winner checked gives the same outcomes, at 0.9 ms more in the median of a run (0.2-1.4).
         Planes under ``stronger_rival_min_area_m2`` are not fed: on a map of 2,000 planes one view's small planes put
         two million map triplets and 0.14 s into the round, 6 ms without them.
         """
