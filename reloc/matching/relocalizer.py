@@ -56,8 +56,8 @@ RELOCALIZED = "relocalized"
 REJECTED = "rejected"
 STAGES = ("prepare", "select", "transform", "verify", "decide", "refine")
 # Parts of "decide" (their time is included in it): frequency weights (Eq. 12-13), kernel density (Eq. 14), the
-# refinement of every mode for the decision over refined poses, and the twin probe before accepting (relaxed
-# selection, transforms and verification).
+# refinement of every mode for the decision over refined poses, the twin probe before accepting (relaxed
+# selection, transforms and verification), and the round over the planes not fed that looks for a stronger pose.
 SUBSTAGES = ("decide.weights", "decide.density", "decide.tighten", "decide.probe", "decide.stronger")
 
 
@@ -834,12 +834,12 @@ class Relocalizer:
             if found is None:
                 continue
             hyps.add(*found)
-            t3 = time.perf_counter()
-            if passed_any := (len(hyps) > 0):
+            if len(hyps):
+                t3 = time.perf_counter()
                 decision, judged = self._judge(hyps, used, vs_ptr, vs_pts, min_matched, timings, trace)
-            timings["decide"] += (time.perf_counter() - t3) * 1e3
-            if passed_any and decision.accepted:
-                break
+                timings["decide"] += (time.perf_counter() - t3) * 1e3
+                if decision.accepted:
+                    break
         if decision.accepted and p.probe_twins:
             # Before accepting, look for twins the selection filters hid: the same submap triplets matched with
             # only the angle, handedness, ground and area-free tests (a twin room the map covers less completely
