@@ -9,6 +9,7 @@ import re
 import numpy as np
 import pytest
 
+from reloc.evaluation.explain import explain_result
 from reloc.evaluation.synthetic import box, furnished_room, look_at, room, scene_planes, view_planes
 from reloc.matching import MatchingParams, Relocalizer, transform_from_plane_pairs
 from reloc.matching import _kernels as K
@@ -699,13 +700,25 @@ def test_a_stronger_pose_among_the_planes_not_fed_turns_an_early_winner_away():
                 reloc._round, reloc._stronger_rival = blind_to_the_first_room, the_last_round_sees_it
             right = wrong = stronger = checked = 0
             for T, sub in zip(Ts, subs):
-                res = reloc.locate(sub)
+                trace: dict = {}
+                res = reloc.locate(sub, trace=trace)
                 if res.relocalized:
                     e = pose_error(res.T_map_cam, T)
                     right += e[0] < 0.05 and e[1] < 1.0
                     wrong += not (e[0] < 0.05 and e[1] < 1.0)
                 stronger += "found among the planes fed last" in res.reason
                 checked += res.timings_ms["decide.stronger"] > 0
+                assert ("stronger" in trace) == ("found among the planes fed last" in res.reason)
+                if "stronger" in trace:
+                    # The trace holds the pose that turned the winner away: the first room, at the true pose.
+                    poses, a = trace["stronger"]
+                    e = pose_error(transform_from_rotation_translation(poses.R[a], poses.t[a]), T)
+                    assert e[0] < 0.05 and e[1] < 1.0, e
+                    text = explain_result(reloc, sub, res, trace, T)
+                    row = next(line for line in text.splitlines() if line.startswith("   S "))
+                    shown = [float(x) for x in row.split()[1:3]]  # metres to 0.01, degrees to 0.1
+                    assert shown[0] == pytest.approx(e[0], abs=0.005) and shown[1] == pytest.approx(e[1], abs=0.05)
+                    assert "submap planes under poses" in text and "pose S" in text
             outcomes[blind, below > 0] = (right, wrong, stronger, checked)
     # Measured: blind, 0 right and 7 wrong without the check (the other 3 rejected), none wrong and those 7 turned
     # away with it; not blind, 9 right either way, the check made in all 10 views.

@@ -47,8 +47,9 @@ def explain_query(relocalizer: Relocalizer, submap: PlaneSet, T_true: np.ndarray
     poses; the poses weighed (per mode: distance to the truth, matched planes, explained and unknown fractions of
     the submap, planes in conflict, whether it has a least-squares pose, its score in the decision and its score as
     a rival, which the winner's must exceed ``min_ambiguity_ratio`` times, 0 for a pose whose camera path walks
-    through a wall of the map); what each submap plane was under the decision's best pose, the pose nearest the truth
-    and the strongest other pose (its state, and the map plane it matched, -1 for none); and whether the true pose is
+    through a wall of the map); the stronger pose that turned an early winner away, when one did (row ``S``); what
+    each submap plane was under the decision's best pose, the pose nearest the truth, the strongest other pose and
+    that stronger pose (its state, and the map plane it matched, -1 for none); and whether the true pose is
     identifiable (:func:`reloc.evaluation.metrics.identifiable`: the map confirms it as ``locate`` would accept
     it) and, with the scene's ``symmetries``, whether a symmetric twin of it is confirmed too
     (:func:`reloc.evaluation.metrics.twin_confirmed`)."""
@@ -109,18 +110,28 @@ def explain_result(relocalizer: Relocalizer, submap: PlaneSet, res, trace: dict,
             else "%6s  %8s" % ("-", "-")
         out.append(f"  {i:2d}  {to_truth:>15s}  {int(hyps.n_matched[i]):6d}  {hyps.explained[i]:9.2f}  "
                    f"{hyps.unknown[i]:7.2f}  {conflicts:9d}  {refined:>13s}  {scores}  {role}".rstrip())
-    used = trace["used"]
-    # The planes under the decision's best pose, the pose nearest the truth and the strongest other pose.
+    # The planes under the decision's best pose, the pose nearest the truth and the strongest other pose, and the
+    # stronger pose that turned the winner away, if one did.
     other = next((i for i in rows if i not in (decision.best, nearest)), None)
-    shown = [i for i in dict.fromkeys([decision.best, nearest, other]) if i is not None and i >= 0]
+    shown = [(str(i), hyps, i) for i in dict.fromkeys([decision.best, nearest, other]) if i is not None and i >= 0]
+    if "stronger" in trace:
+        poses, a = trace["stronger"]
+        to_truth = "" if T_true is None else "%8.2f %6.1f" % pose_error(_pose(poses, a), T_true)
+        conflicts = int(np.count_nonzero(in_conflict(poses.state[a])))
+        out.append("the stronger pose found among the planes fed last (it turned the winner away):")
+        out.append(f"   S  {to_truth:>15s}  {int(poses.n_matched[a]):6d}  {poses.explained[a]:9.2f}  "
+                   f"{poses.unknown[a]:7.2f}  {conflicts:9d}")
+        shown.append(("S", poses, a))
+    used = trace["used"]
     states = ", ".join(f"{k} {w}" for k, w in enumerate(PLANE_STATES))
-    out.append("submap planes under poses " + ", ".join(str(i) for i in shown)
+    out.append("submap planes under poses " + ", ".join(name for name, _, _ in shown)
                + f" (state and map plane, -1 for none; states: {states}):")
-    out.append(("   j  area [m^2]  normal (map, pose %d)  " % shown[0] + "".join(f"  pose {i:<9d}" for i in shown))
-               .rstrip())
+    out.append(("   j  area [m^2]  normal (map, pose %s)  " % shown[0][0]
+                + "".join(f"  pose {name:<9s}" for name, _, _ in shown)).rstrip())
+    first, b = shown[0][1:]
     for j in range(len(used)):
-        n = hyps.R[shown[0]] @ used.normals[j]
-        cells = "".join(f"  {PLANE_STATES[hyps.state[i, j]]:<9s}{int(hyps.match[i, j]):>5d}" for i in shown)
+        n = first.R[b] @ used.normals[j]
+        cells = "".join(f"  {PLANE_STATES[h.state[i, j]]:<9s}{int(h.match[i, j]):>5d}" for _, h, i in shown)
         out.append(f"  {j:2d}  {used.areas[j]:10.2f}  ({n[0]:5.2f} {n[1]:5.2f} {n[2]:5.2f})   {cells}")
     if T_true is not None:
         ident, why = identified if identified is not None else identifiable(relocalizer, submap, T_true)

@@ -729,7 +729,7 @@ class Relocalizer:
         return R, t, cand, v
 
     def _stronger_rival(self, used: PlaneSet, vs_ptr, vs_pts, facing, distances, sub_ext, prev: int, hyps, judged,
-                        decision: Decision, counts: dict) -> Decision:
+                        decision: Decision, counts: dict, trace: dict | None = None) -> Decision:
         """``decision`` (accepted before the incremental input fed every submap plane), or a rejection when the planes
         not yet fed give a stronger pose elsewhere.
 
@@ -746,7 +746,8 @@ class Relocalizer:
         more but explaining less. Only for a winner that explains less than ``stronger_rival_below_explained``: on
         those runs every winner checked gives the same outcomes, at 0.9 ms more in the median of a run (0.2-1.4).
         Planes under ``stronger_rival_min_area_m2`` are not fed: on a map of 2,000 planes one view's small planes put
-        two million map triplets and 0.14 s into the round, 6 ms without them.
+        two million map triplets and 0.14 s into the round, 6 ms without them. ``trace`` (a dict) gets ``stronger``,
+        ``(poses, i)``: the refined poses of that round and the one the rejection names.
         """
         later = np.arange(prev, len(used))
         later = later[used.areas[later] >= self.params.stronger_rival_min_area_m2]
@@ -773,6 +774,8 @@ class Relocalizer:
         net = tight.n_matched - np.count_nonzero(in_conflict(tight.state), axis=1)
         a = int(np.flatnonzero(rival)[np.argmax(net[rival])])
         away = float(np.linalg.norm(tight.t[a] - judged.t[w]))
+        if trace is not None:
+            trace["stronger"] = (tight, a)
         reason = (f"ambiguous: a pose {away:.2f} m from the winner, found among the planes fed last, matches "
                   f"{int(tight.n_matched[a])} planes against its {int(judged.n_matched[w])}")
         return Decision(False, reason, -1, decision.score, decision.runner_up_score, decision.n_modes)
@@ -788,7 +791,8 @@ class Relocalizer:
         hypothesis's mode and each mode's score and score as a rival, see :func:`reloc.matching.scoring.decide`;
         empty when no decision was made over them), and when the winner reached the test of its weakest direction,
         ``direction_support``: its support there and the area taken off it (None where nothing is taken off:
-        occlusion test or ``hidden_against_support`` off). Tracing changes nothing in the result."""
+        occlusion test or ``hidden_against_support`` off), and when a stronger pose among the planes not fed turned
+        the winner away (:meth:`_stronger_rival`), ``stronger``. Tracing changes nothing in the result."""
         if not isinstance(submap, PlaneSet):
             raise ValueError(f"submap: expected a PlaneSet, got {type(submap).__name__}")
         submap.check_geometry("submap")
@@ -857,7 +861,7 @@ class Relocalizer:
             # The rounds stopped at the first pose accepted: the planes not fed may still hold a stronger pose.
             t0 = time.perf_counter()
             decision = self._stronger_rival(used, vs_ptr, vs_pts, facing, distances, sub_ext, prev, hyps, judged,
-                                            decision, counts)
+                                            decision, counts, trace)
             timings["decide.stronger"] += (time.perf_counter() - t0) * 1e3
             timings["decide"] += (time.perf_counter() - t0) * 1e3
             if trace is not None:
