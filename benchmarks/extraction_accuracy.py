@@ -475,7 +475,7 @@ def _print_protocol1(law, setup, planes, errors, means, trials) -> None:
                      s["offset_m_median"] * 1e3, s["angle_deg_max"], s["offset_m_max"] * 1e3, s["time_ms_median"]])
     for m, (a, o) in PAPER_TABLE2_MEANS.items():
         rows.append([f"[paper Table 2] {m}", a, o * 1e3, None, None, None, None, None])
-    rows.append([f"[goal for ours]", GOAL_ANGLE_DEG, GOAL_OFFSET_M * 1e3, None, None, None, None, None])
+    rows.append(["[goal for ours]", GOAL_ANGLE_DEG, GOAL_OFFSET_M * 1e3, None, None, None, None, None])
     print_table(
         ["method", "angle mean", "offset mean [mm]", "angle med", "offset med [mm]", "angle max", "offset max [mm]",
          "time med [ms]"],

@@ -33,7 +33,6 @@ from .messages import (
     Ack,
     AckResult,
     Heartbeat,
-    HeartbeatFlags,
     McuState,
     MsgType,
     OdometryFlags,

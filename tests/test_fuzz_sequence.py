@@ -25,7 +25,7 @@ from test_fuzz_common import Target, fuzz_settings, outcome
 
 W, H = 8, 6
 CAMERA = {"fx": 10.0, "fy": 10.0, "cx": 3.5, "cy": 2.5, "width": W, "height": H, "depth_scale": 1000.0}
-XML = f"""<?xml version="1.0"?>
+XML = """<?xml version="1.0"?>
 <opencv_storage><IR_intrinsic_params type_id="opencv-matrix"><rows>3</rows><cols>3</cols><dt>d</dt>
 <data>10. 0. 3.5 0. 10. 2.5 0. 0. 1.</data></IR_intrinsic_params></opencv_storage>
 """
