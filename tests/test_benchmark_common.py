@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 import sys
 from pathlib import Path
 
@@ -361,3 +362,33 @@ def test_two_accuracy_records_are_compared_view_by_view_in_their_own_maps(tmp_pa
     # A variant the record does not hold: nothing to compare is an error, not empty tables.
     with pytest.raises(SystemExit, match="no source to compare .*with y=2; the record holds extraction/kinect/ours"):
         main(["--name", "cmpv", "--variant", "y=2", str(v)])
+
+
+def test_window_growth_rules_take_the_first_grown_answer_that_clears_the_ratio():
+    from window_growth import outcome, summarize
+
+    def grown(frames, label, ratio, ambiguous=False):
+        return {"frames": frames, "label": label, "ratio": ratio, "ambiguous": ambiguous}
+
+    twin = {"query": "meeting_rooms/robot/6", "map": "meeting_rooms", "positive": True, "label": "FN",
+            "grown": [grown(60, "FP", 2.2), grown(80, "TP", None)]}
+    late = {"query": "office/robot/6", "map": "office", "positive": True, "label": "FN",
+            "grown": [grown(60, "FN", None), grown(80, "TP", 1.6)]}
+    never = {"query": "meeting_rooms/robot/7", "map": "meeting_rooms", "positive": True, "label": "TN",
+             "grown": [grown(80, "FN", None, ambiguous=False)]}
+    still = {"query": "symmetric_room/robot/0", "map": "symmetric_room", "positive": True, "label": "TN",
+             "grown": [grown(80, "TN", None, ambiguous=True)]}
+    negative = {"query": "office/robot/1", "map": "meeting_rooms", "positive": False, "label": "TN",
+                "grown": [grown(60, "FP", 4.0)]}
+    untouched = {"query": "living_room/robot/0", "map": "living_room", "positive": True, "label": "TP", "grown": []}
+    # Any answer (the decision's own ratio): the first size decides; a stricter ratio skips the twin at 2.2 for the
+    # true pose found 20 frames further back, and the answer at 1.6 for a rejection.
+    assert [outcome(r, 1.55) for r in (twin, late, never, still, negative)] == ["FP", "TP", "FN", "TN", "FP"]
+    assert [outcome(r, 3.0) for r in (twin, late, never, still, negative)] == ["TP", "FN", "FN", "TN", "FP"]
+    assert [outcome(r, math.inf) for r in (twin, late, negative)] == ["TP", "FN", "TN"]
+    s = summarize([twin, late, never, still, negative, untouched], 3.0)
+    assert (s["TP"], s["TN"], s["FP"], s["FN"]) == (2, 1, 1, 2) and s["recall"] == pytest.approx(0.5)
+    assert s["changed"] == ["meeting_rooms/robot/6 FN->TP", "meeting_rooms/robot/7 TN->FN",
+                            "office/robot/1 in meeting_rooms TN->FP"]
+    ours = summarize([twin, late, never, still, negative, untouched], None)
+    assert (ours["TP"], ours["TN"], ours["FP"], ours["FN"], ours["changed"]) == (1, 3, 0, 2, [])

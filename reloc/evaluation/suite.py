@@ -37,8 +37,8 @@ from reloc.planeset import PlaneSet
 from reloc.transforms import pose_error
 
 __all__ = ["SCENES", "SENSOR_CAMERAS", "EvalSpec", "Query", "SceneResult", "Prepared", "make_plane_source",
-           "extraction_for_sensor", "build_scene_map", "make_queries", "evaluate_queries", "prepare_suite", "run_suite",
-           "run_ablation", "quick_spec", "sensor_spec", "suite_spec"]
+           "extraction_for_sensor", "build_scene_map", "make_queries", "query_history", "evaluate_queries",
+           "prepare_suite", "run_suite", "run_ablation", "quick_spec", "sensor_spec", "suite_spec"]
 
 SCENES = ("living_room", "office", "apartment", "corridor", "meeting_rooms", "symmetric_room")
 # A noise model that belongs to a camera of its own: (camera preset, width, height) it is simulated with.
@@ -216,6 +216,12 @@ class _QueryWindow:
         return self.sets[-k:], [f.T_world_cam for f in self.frames[-k:]]
 
 
+def _query_window(scene, spec: EvalSpec, source: Callable, poses: np.ndarray, kind: int, q: int) -> _QueryWindow:
+    """The window of query ``q`` along the trajectory of the ``kind``-th query kind (``poses``)."""
+    return _QueryWindow(scene, spec, source, poses, (q + 1) * spec.query_spacing_frames - 1,
+                        spec.query_seed * 7919 + 100 * kind + q)
+
+
 def make_queries(scene, spec: EvalSpec, source: Callable, mapping: MappingParams | None = None) -> list[Query]:
     """Positive queries of ``scene``: windows along query trajectories (not the mapping ones), each grown back in
     time while its submap cannot pin a pose when ``spec.window_max_frames`` allows (its ambiguity label is that of
@@ -230,7 +236,7 @@ def make_queries(scene, spec: EvalSpec, source: Callable, mapping: MappingParams
         poses = make_trajectory(kind, scene, n, spec.query_seed + k)
         for q in range(spec.queries_per_kind):
             end = (q + 1) * spec.query_spacing_frames - 1
-            window = _QueryWindow(scene, spec, source, poses, end, spec.query_seed * 7919 + 100 * k + q)
+            window = _query_window(scene, spec, source, poses, k, q)
             stats: dict = {}
             t0 = time.perf_counter()
             submap, used = grow_submap(window.fetch, spec.window_frames, most, mapping, stats)
@@ -242,6 +248,38 @@ def make_queries(scene, spec: EvalSpec, source: Callable, mapping: MappingParams
             out.append(Query(scene.name, f"{scene.name}/{kind}/{q}", poses[end], submap, amb, times,
                              stats.get("frames_left_out", 0), used))
     return out
+
+
+def query_history(spec: EvalSpec, name: str, source: Callable | None = None) -> tuple[Callable, Callable]:
+    """The history of positive query ``name`` (``scene/kind/index``) of the suite ``spec``, for growing its window
+    further back than the suite did: ``(fetch, ambiguous)``. ``fetch(k)`` returns the plane sets and poses of its
+    newest ``k`` frames as :func:`make_queries` fetches them (fewer where the trajectory begins); its first
+    ``window_frames`` frames are the query's own (same poses and noise), older ones are rendered with seeds of their
+    own. ``ambiguous(k)`` is the ambiguity label of those ``k`` frames (:func:`is_ambiguous`). ``source``: the plane
+    source (default: the suite's, for the scene)."""
+    from sim.scenes import make_scene
+    from sim.trajectories import make_trajectory
+
+    try:
+        scene_name, kind, index = name.split("/")
+        k, q = spec.query_kinds.index(kind), int(index)
+    except ValueError:
+        raise ValueError(f"name: expected scene/kind/index with a kind of {spec.query_kinds}, got {name!r}") from None
+    if scene_name not in spec.scenes or not 0 <= q < spec.queries_per_kind:
+        raise ValueError(f"name: no query {name!r} in this suite (scenes {spec.scenes}, indices 0 to "
+                         f"{spec.queries_per_kind - 1})")
+    scene = make_scene(scene_name)
+    if source is None:
+        ext = extraction_for_sensor(spec) if spec.plane_source == "extraction" else None
+        source = make_plane_source(spec.plane_source, scene, extraction=ext)
+    poses = make_trajectory(kind, scene, spec.queries_per_kind * spec.query_spacing_frames, spec.query_seed + k)
+    window = _query_window(scene, spec, source, poses, k, q)
+
+    def ambiguous(n: int) -> bool:
+        window.fetch(n)
+        return bool(is_ambiguous(scene, poses[window.idx[-n:]], max_range_m=_max_range(spec.noise)))
+
+    return window.fetch, ambiguous
 
 
 def evaluate_queries(relocalizer: Relocalizer, queries: list[Query], scene_name: str,
