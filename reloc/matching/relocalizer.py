@@ -233,14 +233,18 @@ class _Hypotheses:
         return int(self.R.shape[0])
 
 
+def net_matched(hyps) -> np.ndarray:
+    """(H,) int: each hypothesis's matched planes less its planes in conflict with the map or hidden behind it."""
+    return hyps.n_matched - np.count_nonzero(in_conflict(hyps.state), axis=1)
+
+
 def stronger_poses(judged, w: int, poses, params: MatchingParams) -> np.ndarray:
     """(len(poses),) bool: which of ``poses`` (refined modes, :class:`_Hypotheses` of a decision over refined poses)
     are stronger than mode ``w`` of ``judged``: at another place (the distinct thresholds), not walking through a
     wall nor vetoed (:meth:`_Hypotheses.blocked`), matching more planes net of those in conflict with the map or
     hidden behind it, and explaining at least as much of the submap. More planes alone is not enough: a twin one
     room along may match a plane or two more of the room's clutter while the true pose explains more of the view."""
-    net = poses.n_matched - np.count_nonzero(in_conflict(poses.state), axis=1)
-    net_w = judged.n_matched[w] - np.count_nonzero(in_conflict(judged.state[w]))
+    net, net_w = net_matched(poses), net_matched(judged)[w]
     R = np.concatenate([judged.R[w:w + 1], poses.R])
     t = np.concatenate([judged.t[w:w + 1], poses.t])
     out = distinct_from(R, t, 0, params)[1:] & (net > net_w) & (poses.explained >= judged.explained[w])
@@ -618,7 +622,7 @@ class Relocalizer:
         conflict, and one led the next by 1.66-1.69, past ``min_ambiguity_ratio``.
         """
         w = decision.best
-        evidence = match_quality(tight.n_matched - np.count_nonzero(in_conflict(tight.state), axis=1), tight.explained)
+        evidence = match_quality(net_matched(tight), tight.explained)
         rival = distinct_from(tight.R, tight.t, w, self.params)
         rival &= evidence >= evidence[w] - self.params.equal_rival_margin
         blocked = tight.blocked()
@@ -771,8 +775,7 @@ class Relocalizer:
         rival = stronger_poses(judged, w, tight, self.params)
         if not rival.any():
             return decision
-        net = tight.n_matched - np.count_nonzero(in_conflict(tight.state), axis=1)
-        a = int(np.flatnonzero(rival)[np.argmax(net[rival])])
+        a = int(np.flatnonzero(rival)[np.argmax(net_matched(tight)[rival])])
         away = float(np.linalg.norm(tight.t[a] - judged.t[w]))
         if trace is not None:
             trace["stronger"] = (tight, a)
