@@ -40,7 +40,7 @@ def _label(positive: bool, ambiguous: bool, res, T_true) -> str:
     return classify(positive, ambiguous and positive, res.relocalized, errors)
 
 
-def grow_suite(directory: str, most: int, step: int, progress=None) -> list[dict]:
+def grow_suite(directory: str, most: int, step: int) -> list[dict]:
     """One record per query of the saved suite in ``directory`` and per scene it is relocalized in: its label as
     the suite gives it and, when rejected as ambiguous, each grown size's ``frames``, ``ambiguous`` label, ``label``
     and ``ratio`` (None when no rival is left), and the matching time."""
@@ -80,8 +80,6 @@ def grow_suite(directory: str, most: int, step: int, progress=None) -> list[dict
                         "ratio": grown.ambiguity_ratio if math.isfinite(grown.ambiguity_ratio) else None,
                         "reason": grown.reason, "ms": ms})
             records.append(rec)
-            if progress is not None:
-                progress()
     return records
 
 
@@ -144,6 +142,7 @@ def main(argv=None) -> int:
         for r in rules:
             per_rule[f"min ratio {r:g}"] = summarize(records, r)
         grown = [rec for rec in records if rec["grown"]]
+        print(f"{tag}: {len(records)} queries, {len(grown)} grown, {took:.0f} s", flush=True)
         results[tag] = {"seconds": took, "grown_queries": len(grown), "rules": per_rule,
                         "grown_ms_mean": (sum(g["ms"] for rec in grown for g in rec["grown"])
                                           / max(1, sum(len(rec["grown"]) for rec in grown))),
