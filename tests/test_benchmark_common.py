@@ -392,3 +392,29 @@ def test_window_growth_rules_take_the_first_grown_answer_that_clears_the_ratio()
                             "office/robot/1 in meeting_rooms TN->FP"]
     ours = summarize([twin, late, never, still, negative, untouched], None)
     assert (ours["TP"], ours["TN"], ours["FP"], ours["FN"], ours["changed"]) == (1, 3, 0, 2, [])
+
+
+def test_window_growth_repeat_share_tells_a_twin_room_from_a_look_alike_corner():
+    from window_growth import outcome, repeat_share
+
+    from reloc.evaluation.synthetic import furnished_room, look_at, scene_planes
+
+    # Two identical meeting rooms 6.5 m apart along x: the move from one to the other lays the first room's walls
+    # and furniture onto the second's; a move of 1.3 m and 0.9 m across both walls inside the first room lays next
+    # to nothing anywhere. A move along x alone slides the walls facing y along themselves: they count as laid.
+    planes = scene_planes(furnished_room("meeting") + furnished_room("meeting", origin=(6.5, 0.0)))
+    T = look_at((2.0, 1.0, 1.4), (4.0, 4.0, 0.8))
+    twin, moved, slid = T.copy(), T.copy(), T.copy()
+    twin[0, 3] += 6.5
+    moved[:2, 3] += (1.3, 0.9)
+    slid[0, 3] += 1.3
+    assert repeat_share(planes, T, twin) > 0.9
+    assert repeat_share(planes, T, moved) < 0.1
+    assert 0.3 < repeat_share(planes, T, slid) < 0.9
+    # The gate: a query grows only when its rivals' share is known and under the limit.
+    rec = {"query": "meeting_rooms/robot/1", "map": "meeting_rooms", "positive": True, "label": "FN",
+           "grown": [{"frames": 60, "label": "TP", "ratio": None, "ambiguous": False}]}
+    assert outcome({**rec, "repeat_share": 0.1}, 1.0, 0.3) == "TP"
+    assert outcome({**rec, "repeat_share": 0.9}, 1.0, 0.3) == "FN"
+    assert outcome({**rec, "repeat_share": None}, 1.0, 0.3) == "FN"
+    assert outcome({**rec, "repeat_share": 0.9}, 1.0) == "TP"
