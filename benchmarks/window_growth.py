@@ -33,11 +33,11 @@ import sys
 import time
 from pathlib import Path
 
+import numpy as np
+
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from _common import print_table, results_name, write_results  # noqa: E402
-
-import numpy as np  # noqa: E402
 
 REPEAT_RADIUS_M = 4.0  # map planes this close to the best pose's camera (horizontally) are laid onto the map
 REPEAT_ANGLE_DEG = 10.0  # a counterpart faces within this of the moved plane

@@ -138,30 +138,33 @@ def test_a_querys_history_starts_with_its_own_window_and_goes_further_back():
     from reloc.evaluation.suite import extraction_for_sensor, make_plane_source, make_queries, query_history
     from reloc.mapping import MappingParams, build_submap
 
-    spec = replace(quick_spec(plane_source="extraction"), scenes=("living_room",), queries_per_kind=2,
-                   window_frames=4, query_spacing_frames=40)
-    scene = make_scene("living_room")
-    source = make_plane_source("extraction", scene, extraction=extraction_for_sensor(spec))
-    queries = make_queries(scene, spec, source)
-    assert [q.name for q in queries] == [f"living_room/{k}/{i}" for k in ("robot", "handheld") for i in (0, 1)]
-    for q in queries:
-        fetch, ambiguous = query_history(spec, q.name)
-        sets, poses = fetch(spec.window_frames)
-        again = build_submap(sets, poses, MappingParams())
-        # The same frames, noise included: the same submap, to the bit.
-        assert len(again) == len(q.submap) > 0
-        assert np.array_equal(again.normals, q.submap.normals) and np.array_equal(again.offsets, q.submap.offsets)
-        assert np.array_equal(poses[-1], q.T_world_cam)
-        assert ambiguous(spec.window_frames) == q.ambiguous
-        # Further back: older frames first, the newest still the query's, as far as the trajectory goes (the
-        # first query of each kind ends at frame 39, so 14 frames 3 apart; the second at 79, 27 frames).
-        more, older = fetch(30)
-        assert len(more) == (14, 27)[int(q.name[-1])]
-        assert np.array_equal(older[-1], q.T_world_cam) and all(a is b for a, b in zip(more[-4:], sets))
+    # The living room's views have no twin; the meeting rooms' first views (at the first room's table) all do.
+    for name, labelled in (("living_room", False), ("meeting_rooms", True)):
+        spec = replace(quick_spec(plane_source="extraction"), scenes=(name,), queries_per_kind=2, window_frames=4,
+                       query_spacing_frames=40)
+        scene = make_scene(name)
+        source = make_plane_source("extraction", scene, extraction=extraction_for_sensor(spec))
+        queries = make_queries(scene, spec, source)
+        assert [q.name for q in queries] == [f"{name}/{k}/{i}" for k in ("robot", "handheld") for i in (0, 1)]
+        for q in queries:
+            fetch, ambiguous = query_history(spec, q.name)
+            sets, poses = fetch(spec.window_frames)
+            again = build_submap(sets, poses, MappingParams())
+            # The same frames, noise included: the same submap, to the bit.
+            assert len(again) == len(q.submap) > 0
+            assert np.array_equal(again.normals, q.submap.normals)
+            assert np.array_equal(again.offsets, q.submap.offsets)
+            assert np.array_equal(poses[-1], q.T_world_cam)
+            assert ambiguous(spec.window_frames) == q.ambiguous == labelled
+            # Further back: older frames first, the newest still the query's, as far as the trajectory goes (the
+            # first query of each kind ends at frame 39, so 14 frames 3 apart; the second at 79, 27 frames).
+            more, older = fetch(30)
+            assert len(more) == (14, 27)[int(q.name[-1])]
+            assert np.array_equal(older[-1], q.T_world_cam) and all(a is b for a, b in zip(more[-4:], sets))
     with pytest.raises(ValueError, match="no query 'office/robot/0'"):
         query_history(spec, "office/robot/0")
     with pytest.raises(ValueError, match="scene/kind/index"):
-        query_history(spec, "living_room/drone/0")
+        query_history(spec, "meeting_rooms/drone/0")
 
 
 @pytest.fixture(scope="module")
