@@ -672,6 +672,14 @@ class EvaluationConfig(_Section):
         "inside a wall is not half a match (the suite and its eight replicates: Kinect +2 true poses, ToF +7, no "
         "false positive more; stereo has occlusion off).",
     )
+    sealed_rival_credit: bool = Field(
+        False,
+        description="With optimistic_rivals and hidden_rival_credit, where the sensor's noise turns occlusion off (a "
+        "noisy sensor's map draws surface across the doorways the cameras saw through), a rival's credit for a "
+        "plane unknown to the map still shrinks with the share of the plane behind a map surface that the map never "
+        "saw past: no known free space between the surface and the plane (the outside of the building's outer "
+        "wall). Only the credit changes, not the planes' states.",
+    )
     evidence_area_m2: float = Field(
         1.0, gt=0, description="A matched plane's weight (Eq. 12-13) grows with its area up to this (small facets are "
         "weak evidence, and often clutter).",

@@ -982,6 +982,70 @@ def test_a_plane_behind_a_map_wall_is_hidden_but_not_one_seen_through_a_doorway(
     assert states["solid, seen from beyond"] == (1, 0.0)
 
 
+def test_a_sealed_map_surface_hides_only_where_the_map_never_saw_past_it():
+    """A noisy sensor's map draws surface across doorways the cameras saw through, so for it a map surface hides a
+    plane only where the map knows no free space between the two (``sealed``). The view of the doorway test above, a
+    side wall 1-2 m behind the corridor's solid y = 0 wall: with free space known only in the corridor (the outside
+    of a building's outer wall), the wall hides it as without ``sealed``; with free space known beyond the wall too,
+    0.3 m short of the surfaces there (a room the mapping run saw, through a doorway its map closed), it hides
+    nothing."""
+    from dataclasses import replace
+
+    from reloc.evaluation.synthetic import Rect
+    from reloc.mapping import PlaneMap
+
+    corridor = [r for r in room(6.0, 2.0, 2.7) if r.normal[1] < 0.5]  # all but the y = 0 wall
+    wall = Rect((3.0, 0.0, 1.35), (0, 1, 0), (1, 0, 0), 3.0, 1.35)
+    beyond = Rect((2.3, -1.5, 1.0), (1, 0, 0), (0, 1, 0), 0.5, 0.8)
+    T = look_at((4.0, 1.5, 1.3), (1.0, -0.5, 1.0))
+    voxel = 0.15
+    g = np.stack(np.meshgrid(np.arange(voxel / 2, 6.0, voxel), np.arange(-2.0, 2.0, voxel),
+                             np.arange(0.3, 2.4, voxel), indexing="ij"), axis=-1).reshape(-1, 3)
+    inside = g[(g[:, 1] > 0.3) & (g[:, 1] < 1.7)]
+    behind = g[(g[:, 1] < -0.3) & (g[:, 0] > 2.6)]  # the room beyond (its side wall faces +x)
+    planes = scene_planes(corridor + [wall])
+    got = {}
+    for name, free in (("outer wall", inside), ("seen past", np.concatenate([inside, behind]))):
+        pm = PlaneMap(planes, np.ones(len(planes), np.int64), free_keys=np.unique(K.cell_keys(free, voxel)),
+                      free_voxel_m=voxel)
+        reloc = Relocalizer(pm, MatchingParams())
+        used, _, vs_ptr, vs_pts = reloc.prepare(view_planes(corridor + [wall, beyond], T))
+        gap = np.linalg.norm(used.centroids @ T[:3, :3].T + T[:3, 3] - np.array(beyond.center), axis=1)
+        j = int(np.argmin(gap))
+        assert gap[j] < 0.05
+        v = _verify_at(reloc, used, vs_ptr, vs_pts, T, tight=True)
+        assert v.state[0, j] == 1 and float(v.free_frac[0, j]) == 0.0  # unknown to the map, not in its free space
+        for sealed in (False, True):
+            state = v.state.copy()
+            frac = reloc.mark_hidden(used, vs_ptr, vs_pts, T[None, :3, :3], T[None, :3, 3], state, exact=True,
+                                     sealed=sealed)
+            got[name, sealed] = (int(state[0, j]), round(float(frac[0, j]), 2))
+    assert got["outer wall", False][0] == 6 and got["outer wall", False][1] >= 0.5
+    assert got["outer wall", True] == got["outer wall", False] == got["seen past", False]
+    assert got["seen past", True] == (1, 0.0)
+    # The decision over refined poses of a sensor whose noise turns the occlusion test off (scaled_to_sensor): with
+    # sealed_rival_credit the rivals' credit gets the sealed shares (the map with free space in the corridor only),
+    # and the planes' states are left alone; without, it gets none.
+    from reloc.matching.relocalizer import _Hypotheses
+
+    pm = PlaneMap(planes, np.ones(len(planes), np.int64), free_keys=np.unique(K.cell_keys(inside, voxel)),
+                  free_voxel_m=voxel)
+    for sealed in (False, True):
+        reloc = Relocalizer(pm, replace(MatchingParams(), occlusion=False, sealed_rival_credit=sealed))
+        used, _, vs_ptr, vs_pts = reloc.prepare(view_planes(corridor + [wall, beyond], T))
+        cand = np.array([[0, 1, 2, 0, 0, 0]], np.int32)
+        hyps = _Hypotheses(len(used))
+        hyps.add(T[None, :3, :3], T[None, :3, 3], cand,
+                 reloc.verify(used, vs_ptr, vs_pts, T[None, :3, :3], T[None, :3, 3], cand, require_triplet=False))
+        tight = reloc._tightened(hyps, used, vs_ptr, vs_pts)
+        j = int(np.argmin(np.linalg.norm(used.centroids @ T[:3, :3].T + T[:3, 3] - np.array(beyond.center), axis=1)))
+        assert len(tight) == 1 and tight.state[0, j] == 1
+        if sealed:
+            assert float(tight.hidden_frac[0, j]) == pytest.approx(got["outer wall", True][1], abs=0.01)
+        else:
+            assert tight.hidden_frac is None
+
+
 def test_a_plane_seen_through_the_back_of_a_map_surface_is_hidden_when_the_camera_stands_well_behind_it():
     """A look-alike pose can put the cameras outside a room, behind its wall as the map knows it (a face seen from the
     room only), looking through that wall at what they saw. In a 3 x 3 m room, a 2 m wide partition of the map at y =

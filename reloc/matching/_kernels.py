@@ -1139,14 +1139,34 @@ def _crossing(i, ax, ay, az, bx, by, bz, sa, sb, map_centroids, map_radii):
 
 
 @njit
+def _free_between(ax, ay, az, bx, by, bz, free_slots, free_shift, free_mask, free_voxel):
+    """Whether a voxel of the map's known free space (:func:`key_table` ``free_slots``, edge ``free_voxel``) lies on
+    the segment from ``a`` to ``b``, looked at every half voxel."""
+    dx = bx - ax
+    dy = by - ay
+    dz = bz - az
+    n = int(math.ceil(2.0 * math.sqrt(dx * dx + dy * dy + dz * dz) / free_voxel))
+    for k in range(1, n):
+        f = k / n
+        key = _cell_of(ax + f * dx, ay + f * dy, az + f * dz, free_voxel)
+        if _find_key(free_slots, free_slots, free_shift, free_mask, key) >= 0:
+            return True
+    return False
+
+
+@njit
 def _hidden_from(cx, cy, cz, px, py, pz, nx, ny, nz, map_normals, map_offsets, map_centroids, map_radii, bases,
-                 surf_ptr, surf_keys, cell, margin, erode, behind):
+                 surf_ptr, surf_keys, cell, margin, erode, behind, free_slots, free_voxel, sealed):
     """Whether the line of sight from the camera ``c`` to the point ``p`` (of a plane with normal ``n``) crosses a
     map surface first: a map plane with ``c`` in front of it and ``p`` more than ``margin`` behind it, crossed
     where that plane has surface all around (the crossing and the four points ``erode`` from it along the plane).
     With ``behind``, also a map plane with ``c`` more than ``erode`` behind it and ``p`` more than ``margin`` in
     front: a wall hides from its back too. Nearer than ``erode`` behind it, a camera may be on the far side of a
-    plane the map smeared past its edge (flying pixels at a jamb)."""
+    plane the map smeared past its edge (flying pixels at a jamb). With ``sealed``, a map surface hides ``p`` only
+    where no voxel of the map's known free space (``free_slots``, edge ``free_voxel``) lies between the crossing and
+    ``p``: the map never saw past the surface there (the outside of a building's outer wall), where a noisy sensor's
+    map may draw surface across a doorway the cameras saw through."""
+    free_shift, free_mask = _table_shape(free_slots) if sealed else (0, 0)
     for i in range(map_normals.shape[0]):
         mx = map_normals[i, 0]
         my = map_normals[i, 1]
@@ -1174,19 +1194,22 @@ def _hidden_from(cx, cy, cz, px, py, pz, nx, ny, nz, map_normals, map_offsets, m
                     and _on_surface(i, x - ex, y - ey, z - ez, bases, surf_ptr, surf_keys, cell)):
                 ok = False
                 break
-        if ok:
+        if ok and not (sealed and _free_between(x, y, z, px, py, pz, free_slots, free_shift, free_mask,
+                                                  free_voxel)):
             return True
     return False
 
 
 @njit
 def mark_hidden(R, t, state, sub_normals, vs_ptr, vs_points, views, map_normals, map_offsets, map_centroids,
-                map_radii, bases, surf_ptr, surf_keys, cell, margin, erode, min_fraction, exact, out_frac, behind):
+                map_radii, bases, surf_ptr, surf_keys, cell, margin, erode, min_fraction, exact, out_frac, behind,
+                free_slots, free_voxel, sealed):
     """Planes unknown to the map (``state`` 1) under each pose ``(R[h], t[h])`` that the map says the cameras could
     not have seen: at least ``min_fraction`` of their verification samples, moved toward their centre to
     ``HIDDEN_SHRINK`` of their distance from it (off the borders that lines of sight graze), are hidden behind a map
     surface from every camera position of ``views`` (the submap's viewpoints, its frame; with ``behind``, from
-    either side of the surface, :func:`_hidden_from`). Their state becomes 6 in place; ``out_frac`` (H, S) float32
+    either side of the surface; with ``sealed``, only behind surfaces the map never saw past, :func:`_hidden_from`).
+    Their state becomes 6 in place; ``out_frac`` (H, S) float32
     gets the hidden fraction of each plane looked at (0 elsewhere; for a plane not marked, counted only until the
     samples left could no longer make ``min_fraction``, unless ``exact``: then over all its samples). Returns the
     planes marked.
@@ -1246,7 +1269,7 @@ def mark_hidden(R, t, state, sub_normals, vs_ptr, vs_points, views, map_normals,
                 for v in range(V):
                     if not _hidden_from(vx[v], vy[v], vz[v], px, py, pz, nx, ny, nz, map_normals, map_offsets,
                                         map_centroids, map_radii, bases, surf_ptr, surf_keys, cell, margin, erode,
-                                        behind):
+                                        behind, free_slots, free_voxel, sealed):
                         every = False
                         break
                 if every:
@@ -1558,7 +1581,9 @@ def _warmup() -> None:
     sptr3 = np.array([0, 1, 1, 1], np.int64)
     hid = np.ones((1, S), np.int8)
     mark_hidden(Rs, ts, hid, normals, vs_ptr, pts, np.zeros((1, 3)), normals, offsets, centroids, radii, bases,
-                sptr3, skeys, 0.1, 0.04, 0.3, 0.5, True, np.empty((1, S), np.float32), True)
+                sptr3, skeys, 0.1, 0.04, 0.3, 0.5, True, np.empty((1, S), np.float32), True, slots, 0.25, False)
+    mark_hidden(Rs, ts, hid, normals, vs_ptr, pts, np.zeros((1, 3)), normals, offsets, centroids, radii, bases,
+                sptr3, skeys, 0.1, 0.04, 0.3, 0.5, True, np.empty((1, S), np.float32), True, slots, 0.25, True)
     path_blocked(Rs, ts, np.array([[0.0, 0.0, 2.0], [0.0, 0.0, -2.0]]), 0.3, normals, offsets, centroids, radii,
                  bases, sptr3, skeys, 0.1, 0.05, 0.5, np.array([0.0, 0.0, 1.0]), np.empty(1, np.bool_))
     dens = np.empty(1)

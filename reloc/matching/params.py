@@ -103,6 +103,7 @@ class MatchingParams:
     rival_unknown_weight: float = 0.75
     noisy_rival_unknown_weight: float = 0.5
     hidden_rival_credit: bool = True
+    sealed_rival_credit: bool = False
     evidence_area_m2: float = 1.0
     distinct_translation_m: float = 0.25
     distinct_rotation_rad: float = math.radians(5.0)
@@ -257,6 +258,7 @@ class MatchingParams:
             rival_unknown_weight=e.rival_unknown_weight,
             noisy_rival_unknown_weight=e.noisy_rival_unknown_weight,
             hidden_rival_credit=e.hidden_rival_credit,
+            sealed_rival_credit=e.sealed_rival_credit,
             evidence_area_m2=e.evidence_area_m2,
             distinct_translation_m=e.distinct_translation_m,
             distinct_rotation_rad=r(e.distinct_rotation_deg),

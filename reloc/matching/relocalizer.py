@@ -372,12 +372,14 @@ class Relocalizer:
         )
         return Verification(**out, evaluated=int(evaluated))
 
-    def mark_hidden(self, used: PlaneSet, vs_ptr, vs_pts, R, t, state: np.ndarray, exact: bool = False) -> np.ndarray:
+    def mark_hidden(self, used: PlaneSet, vs_ptr, vs_pts, R, t, state: np.ndarray, exact: bool = False,
+                    sealed: bool = False) -> np.ndarray:
         """Mark the planes of ``used`` unknown to the map under ``(R, t)`` (``state`` 1, changed in place to 6) that
         the map says the submap's cameras could not have seen (:func:`reloc.matching._kernels.mark_hidden`; the
         cameras are ``used.viewpoints``, or the origin of the latest camera's frame; map surfaces hide from their
-        backs too with ``occlusion_from_behind`` and a map that knows its free space). Returns the (H, S) hidden
-        fractions (of a plane not marked, exact only with ``exact``, else a lower bound)."""
+        backs too with ``occlusion_from_behind`` and a map that knows its free space; with ``sealed``, a map
+        surface hides only what lies where the map never saw past it: no known free space between the two). Returns
+        the (H, S) hidden fractions (of a plane not marked, exact only with ``exact``, else a lower bound)."""
         p = self.params
         ix = self.index
         views = used.viewpoints if used.viewpoints is not None else np.zeros((1, 3))
@@ -385,7 +387,8 @@ class Relocalizer:
         K.mark_hidden(np.ascontiguousarray(R), np.ascontiguousarray(t), state, used.normals, vs_ptr, vs_pts,
                       np.ascontiguousarray(views), ix.normals, ix.offsets, ix.centroids, ix.radii, ix.bases,
                       ix.surf_ptr, ix.surf_keys, SURFACE_CELL_M, p.occlusion_margin_m, p.occlusion_erode_m,
-                      p.occlusion_min_fraction, exact, frac, p.occlusion_from_behind and self._map_knows_free_space)
+                      p.occlusion_min_fraction, exact, frac, p.occlusion_from_behind and self._map_knows_free_space,
+                      ix.free_slots, ix.free_voxel_m, sealed and self._map_knows_free_space)
         return frac
 
     def path_blocked(self, used: PlaneSet, R, t) -> np.ndarray:
@@ -561,6 +564,11 @@ class Relocalizer:
             frac = self.mark_hidden(used, vs_ptr, vs_pts, R, t, v.state, exact=exact)
             hidden = frac[v.passed] if exact else None
             contradicted = np.maximum(contradicted, largest_area(v.state, used.areas, 6))
+        elif p.sealed_rival_credit and p.hidden_rival_credit and p.optimistic_rivals and self._map_knows_free_space:
+            # Occlusion off (a noisy sensor's map closes doorways): a rival's credit for a plane still shrinks with
+            # the share of it behind a map surface the map never saw past (the outside of the building's outer
+            # wall). The states are left alone: only the rivals' credit changes.
+            hidden = self.mark_hidden(used, vs_ptr, vs_pts, R, t, v.state.copy(), exact=True, sealed=True)[v.passed]
         vetoed = np.zeros(len(leaders), dtype=bool)
         if p.conflict_vetoes_rivals and p.max_conflict_area_m2 > 0:
             # A mode with a plane of max_conflict_area_m2 or more in conflict with the map (or hidden behind a map
