@@ -678,7 +678,8 @@ class EvaluationConfig(_Section):
         "noisy sensor's map draws surface across the doorways the cameras saw through), a rival's credit for a "
         "plane unknown to the map still shrinks with the share of the plane behind a map surface that the map never "
         "saw past: no known free space between the surface and the plane (the outside of the building's outer "
-        "wall). Only the credit changes, not the planes' states.",
+        "wall). Only the credit changes, not the planes' states. Off by default: over the suite's nine stereo runs "
+        "+19 true poses and +2 false positives (meeting rooms), and 2.9 ms more per query in the mean.",
     )
     evidence_area_m2: float = Field(
         1.0, gt=0, description="A matched plane's weight (Eq. 12-13) grows with its area up to this (small facets are "
