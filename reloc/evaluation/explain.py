@@ -40,6 +40,15 @@ def _pose(hyps, i: int) -> np.ndarray:
     return transform_from_rotation_translation(hyps.R[i], hyps.t[i])
 
 
+def _pose_columns(label: str, hyps, i: int, T_true: np.ndarray | None) -> str:
+    """The first columns of a pose's row in the table of poses weighed: its label, its distance to the truth (blank
+    without ``T_true``), matched planes, explained and unknown fractions and planes in conflict."""
+    to_truth = "" if T_true is None else "%8.2f %6.1f" % pose_error(_pose(hyps, i), T_true)
+    conflicts = int(np.count_nonzero(in_conflict(hyps.state[i])))
+    return (f"  {label:>2s}  {to_truth:>15s}  {int(hyps.n_matched[i]):6d}  {hyps.explained[i]:9.2f}  "
+            f"{hyps.unknown[i]:7.2f}  {conflicts:9d}")
+
+
 def explain_query(relocalizer: Relocalizer, submap: PlaneSet, T_true: np.ndarray | None = None, *,
                   max_modes: int = 8, symmetries=()) -> str:
     """A text account of ``relocalizer.locate(submap)``: the result (with its pose error when ``T_true``, the
@@ -97,8 +106,6 @@ def explain_result(relocalizer: Relocalizer, submap: PlaneSet, res, trace: dict,
     if T_true is not None:
         nearest = min(range(len(hyps)), key=lambda i: pose_error(_pose(hyps, i), T_true)[0])
     for i in rows:
-        to_truth = "" if T_true is None else "%8.2f %6.1f" % pose_error(_pose(hyps, i), T_true)
-        conflicts = int(np.count_nonzero(in_conflict(hyps.state[i])))
         refined = ("yes" if hyps.is_refined(i) else "no") if tight else "-"
         role = "winner" if (decision.accepted and i == decision.best) else ("best" if i == decision.best else "")
         role += " (nearest the truth)" if i == nearest else ""
@@ -108,19 +115,15 @@ def explain_result(relocalizer: Relocalizer, submap: PlaneSet, res, trace: dict,
             role = f"{role} ({why}: no rival)".lstrip()
         scores = "%6.3f  %8.3f" % (modes["score"][modes["group"][i]], modes["rival"][modes["group"][i]]) if modes \
             else "%6s  %8s" % ("-", "-")
-        out.append(f"  {i:2d}  {to_truth:>15s}  {int(hyps.n_matched[i]):6d}  {hyps.explained[i]:9.2f}  "
-                   f"{hyps.unknown[i]:7.2f}  {conflicts:9d}  {refined:>13s}  {scores}  {role}".rstrip())
+        out.append(f"{_pose_columns(str(i), hyps, i, T_true)}  {refined:>13s}  {scores}  {role}".rstrip())
     # The planes under the decision's best pose, the pose nearest the truth and the strongest other pose, and the
     # stronger pose that turned the winner away, if one did.
     other = next((i for i in rows if i not in (decision.best, nearest)), None)
     shown = [(str(i), hyps, i) for i in dict.fromkeys([decision.best, nearest, other]) if i is not None and i >= 0]
     if "stronger" in trace:
         poses, a = trace["stronger"]
-        to_truth = "" if T_true is None else "%8.2f %6.1f" % pose_error(_pose(poses, a), T_true)
-        conflicts = int(np.count_nonzero(in_conflict(poses.state[a])))
         out.append("the stronger pose found among the planes fed last (it turned the winner away):")
-        out.append(f"   S  {to_truth:>15s}  {int(poses.n_matched[a]):6d}  {poses.explained[a]:9.2f}  "
-                   f"{poses.unknown[a]:7.2f}  {conflicts:9d}")
+        out.append(_pose_columns("S", poses, a, T_true))
         shown.append(("S", poses, a))
     used = trace["used"]
     states = ", ".join(f"{k} {w}" for k, w in enumerate(PLANE_STATES))

@@ -186,6 +186,7 @@ class _QueryWindow:
 
     def __init__(self, scene, spec: EvalSpec, source: Callable, poses: np.ndarray, end: int, seed: int):
         self.scene, self.spec, self.source, self.poses, self.seed = scene, spec, source, poses, seed
+        self.end = end  # the query's own frame, the newest of its window
         self.idx = np.arange(end - spec.window_stride * (spec.window_frames - 1), end + 1, spec.window_stride)
         self.frames: list = []
         self.sets: list = []
@@ -235,7 +236,6 @@ def make_queries(scene, spec: EvalSpec, source: Callable, mapping: MappingParams
         n = spec.queries_per_kind * spec.query_spacing_frames
         poses = make_trajectory(kind, scene, n, spec.query_seed + k)
         for q in range(spec.queries_per_kind):
-            end = (q + 1) * spec.query_spacing_frames - 1
             window = _query_window(scene, spec, source, poses, k, q)
             stats: dict = {}
             t0 = time.perf_counter()
@@ -245,7 +245,7 @@ def make_queries(scene, spec: EvalSpec, source: Callable, mapping: MappingParams
             amb = is_ambiguous(scene, poses[idx], max_range_m=_max_range(spec.noise))
             times = {"planes_per_frame": window.extract_ms / len(window.sets),
                      "submap": t_all - window.extract_ms - window.render_ms}
-            out.append(Query(scene.name, f"{scene.name}/{kind}/{q}", poses[end], submap, amb, times,
+            out.append(Query(scene.name, f"{scene.name}/{kind}/{q}", poses[window.end], submap, amb, times,
                              stats.get("frames_left_out", 0), used))
     return out
 
