@@ -1156,17 +1156,17 @@ def _free_between(ax, ay, az, bx, by, bz, free_slots, free_shift, free_mask, fre
 
 @njit
 def _hidden_from(cx, cy, cz, px, py, pz, nx, ny, nz, map_normals, map_offsets, map_centroids, map_radii, bases,
-                 surf_ptr, surf_keys, cell, margin, erode, behind, free_slots, free_voxel, sealed):
+                 surf_ptr, surf_keys, cell, margin, erode, behind, free_slots, free_shift, free_mask, free_voxel,
+                 sealed):
     """Whether the line of sight from the camera ``c`` to the point ``p`` (of a plane with normal ``n``) crosses a
     map surface first: a map plane with ``c`` in front of it and ``p`` more than ``margin`` behind it, crossed
     where that plane has surface all around (the crossing and the four points ``erode`` from it along the plane).
     With ``behind``, also a map plane with ``c`` more than ``erode`` behind it and ``p`` more than ``margin`` in
     front: a wall hides from its back too. Nearer than ``erode`` behind it, a camera may be on the far side of a
     plane the map smeared past its edge (flying pixels at a jamb). With ``sealed``, a map surface hides ``p`` only
-    where no voxel of the map's known free space (``free_slots``, edge ``free_voxel``) lies between the crossing and
-    ``p``: the map never saw past the surface there (the outside of a building's outer wall), where a noisy sensor's
-    map may draw surface across a doorway the cameras saw through."""
-    free_shift, free_mask = _table_shape(free_slots) if sealed else (0, 0)
+    where no voxel of the map's known free space (``free_slots`` with its :func:`_table_shape`, edge ``free_voxel``)
+    lies between the crossing and ``p``: the map never saw past the surface there (the outside of a building's outer
+    wall), where a noisy sensor's map may draw surface across a doorway the cameras saw through."""
     for i in range(map_normals.shape[0]):
         mx = map_normals[i, 0]
         my = map_normals[i, 1]
@@ -1209,10 +1209,9 @@ def mark_hidden(R, t, state, sub_normals, vs_ptr, vs_points, views, map_normals,
     ``HIDDEN_SHRINK`` of their distance from it (off the borders that lines of sight graze), are hidden behind a map
     surface from every camera position of ``views`` (the submap's viewpoints, its frame; with ``behind``, from
     either side of the surface; with ``sealed``, only behind surfaces the map never saw past, :func:`_hidden_from`).
-    Their state becomes 6 in place; ``out_frac`` (H, S) float32
-    gets the hidden fraction of each plane looked at (0 elsewhere; for a plane not marked, counted only until the
-    samples left could no longer make ``min_fraction``, unless ``exact``: then over all its samples). Returns the
-    planes marked.
+    Their state becomes 6 in place; ``out_frac`` (H, S) float32 gets the hidden fraction of each plane looked at (0
+    elsewhere; for a plane not marked, counted only until the samples left could no longer make ``min_fraction``,
+    unless ``exact``: then over all its samples). Returns the planes marked.
 
     A look-alike pose puts what the cameras saw through a doorway, or the side of a door jamb, behind a wall of the
     map, where the map knows nothing (it never saw behind the wall) but where nothing could have been seen either.
@@ -1225,6 +1224,7 @@ def mark_hidden(R, t, state, sub_normals, vs_ptr, vs_points, views, map_normals,
     vx = np.empty(V)
     vy = np.empty(V)
     vz = np.empty(V)
+    free_shift, free_mask = _table_shape(free_slots) if sealed else (0, 0)
     marked = 0
     for h in range(H):
         for v in range(V):
@@ -1269,7 +1269,7 @@ def mark_hidden(R, t, state, sub_normals, vs_ptr, vs_points, views, map_normals,
                 for v in range(V):
                     if not _hidden_from(vx[v], vy[v], vz[v], px, py, pz, nx, ny, nz, map_normals, map_offsets,
                                         map_centroids, map_radii, bases, surf_ptr, surf_keys, cell, margin, erode,
-                                        behind, free_slots, free_voxel, sealed):
+                                        behind, free_slots, free_shift, free_mask, free_voxel, sealed):
                         every = False
                         break
                 if every:
