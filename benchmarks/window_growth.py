@@ -106,8 +106,9 @@ def _label(positive: bool, ambiguous: bool, res, T_true) -> str:
 
 def grow_suite(directory: str, most: int, step: int) -> list[dict]:
     """One record per query of the saved suite in ``directory`` and per scene it is relocalized in: its label as
-    the suite gives it and, when rejected as ambiguous, each grown size's ``frames``, ``ambiguous`` label, ``label``
-    and ``ratio`` (None when no rival is left), and the matching time."""
+    the suite gives it and, when rejected as ambiguous, its rivals' ``repeat_share`` (:func:`rivals_repeat_share`)
+    and each grown size's ``frames``, ``ambiguous`` label, ``label`` and ``ratio`` (None when no rival is left), and
+    the matching time."""
     from reloc.evaluation.prepared_io import load_prepared
     from reloc.evaluation.suite import query_history
     from reloc.mapping import MappingParams, build_submap

@@ -806,9 +806,9 @@ def test_a_refined_rival_with_as_much_evidence_makes_the_winner_ambiguous(living
     assert judge(tight, won) is won
 
 
-def _weighed_modes(reloc, sub, Ts):
-    """Poses ``Ts`` of the view ``sub`` weighed as modes of the decision over refined poses (each verified, refined
-    and judged as ``locate`` does): per pose, whether it is no rival, its explained fraction and its state row."""
+def _tightened_at(reloc, sub, Ts):
+    """Poses ``Ts`` of the view ``sub`` as modes of the decision over refined poses (each verified and refined as
+    ``locate`` does): ``(tight, used, order)``, ``order`` the mode of each pose."""
     from reloc.matching.relocalizer import _Hypotheses
 
     used, _, vs_ptr, vs_pts = reloc.prepare(sub)
@@ -817,7 +817,13 @@ def _weighed_modes(reloc, sub, Ts):
     hyps = _Hypotheses(len(used))
     hyps.add(R, t, cand, reloc.verify(used, vs_ptr, vs_pts, R, t, cand, require_triplet=False))
     tight = reloc._tightened(hyps, used, vs_ptr, vs_pts)
-    order = [int(np.argmin(np.linalg.norm(tight.t - x[:3, 3], axis=1))) for x in Ts]  # modes by pose
+    return tight, used, [int(np.argmin(np.linalg.norm(tight.t - x[:3, 3], axis=1))) for x in Ts]
+
+
+def _weighed_modes(reloc, sub, Ts):
+    """Poses ``Ts`` of the view ``sub`` weighed as modes of the decision over refined poses (:func:`_tightened_at`):
+    per pose, whether it is no rival, its explained fraction and its state row."""
+    tight, used, order = _tightened_at(reloc, sub, Ts)
     return ([bool(tight.blocked()[k]) for k in order], [float(tight.explained[k]) for k in order],
             [tight.state[k] for k in order], used)
 
@@ -1026,22 +1032,15 @@ def test_a_sealed_map_surface_hides_only_where_the_map_never_saw_past_it():
     # The decision over refined poses of a sensor whose noise turns the occlusion test off (scaled_to_sensor): with
     # sealed_rival_credit the rivals' credit gets the sealed shares (the map with free space in the corridor only),
     # and the planes' states are left alone; without, it gets none.
-    from reloc.matching.relocalizer import _Hypotheses
-
     pm = PlaneMap(planes, np.ones(len(planes), np.int64), free_keys=np.unique(K.cell_keys(inside, voxel)),
                   free_voxel_m=voxel)
     for sealed in (False, True):
         reloc = Relocalizer(pm, replace(MatchingParams(), occlusion=False, sealed_rival_credit=sealed))
-        used, _, vs_ptr, vs_pts = reloc.prepare(view_planes(corridor + [wall, beyond], T))
-        cand = np.array([[0, 1, 2, 0, 0, 0]], np.int32)
-        hyps = _Hypotheses(len(used))
-        hyps.add(T[None, :3, :3], T[None, :3, 3], cand,
-                 reloc.verify(used, vs_ptr, vs_pts, T[None, :3, :3], T[None, :3, 3], cand, require_triplet=False))
-        tight = reloc._tightened(hyps, used, vs_ptr, vs_pts)
+        tight, used, (k,) = _tightened_at(reloc, view_planes(corridor + [wall, beyond], T), [T])
         j = int(np.argmin(np.linalg.norm(used.centroids @ T[:3, :3].T + T[:3, 3] - np.array(beyond.center), axis=1)))
-        assert len(tight) == 1 and tight.state[0, j] == 1
+        assert len(tight) == 1 and tight.state[k, j] == 1
         if sealed:
-            assert float(tight.hidden_frac[0, j]) == pytest.approx(got["outer wall", True][1], abs=0.01)
+            assert float(tight.hidden_frac[k, j]) == pytest.approx(got["outer wall", True][1], abs=0.01)
         else:
             assert tight.hidden_frac is None
 
