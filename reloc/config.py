@@ -612,6 +612,14 @@ class EvaluationConfig(_Section):
         "it lies farther than this from it (between decision_max_offset_m and this it is neither matched nor in "
         "conflict).",
     )
+    near_decision_offsets: bool = Field(
+        False,
+        description="Where the decision offsets are raised to follow a noisy sensor (DECISION_SIGMAS and "
+        "CONFLICT_SIGMAS times its noise at 3 m), each submap plane nearer than 3 m to the nearest camera of its "
+        "window gets the offsets of the noise at that distance, never below decision_max_offset_m and "
+        "decision_conflict_m: a stereo plane seen from 2 m is measured to 1 cm, and a rival that puts it 6 cm off "
+        "a map surface facing its way contradicts the map there.",
+    )
     optimistic_rivals: bool = Field(
         True,
         description="In the ambiguity test a rival pose's planes that land where the map knows nothing count as if "

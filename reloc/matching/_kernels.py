@@ -736,12 +736,16 @@ def _cell_of(x, y, z, cell):
 @njit
 def verify_transforms(R, t, cand, plane_order, sub_normals, sub_offsets, sub_centroids, sub_areas, vs_ptr, vs_points,
                       map_normals, map_offsets, map_areas, min_area_ratio, hash_slots, hash_slot_pos,
-                      hash_ptr, hash_ids, cell, cos_match, max_offset, inlier_m,
+                      hash_ptr, hash_ids, cell, cos_match, max_offset0, inlier0,
                       use_projection, min_projection, use_overlap, min_overlap, min_matched, min_competitor,
                       min_counted_area, free_slots, free_voxel, max_free_fraction, free_far_min, require_triplet,
-                      conflict_offset, out_match, out_proj, out_over, out_state, out_nmatched, out_explained,
+                      conflict0, offset_scale, out_match, out_proj, out_over, out_state, out_nmatched, out_explained,
                       out_unknown, out_free, out_pass, out_free_frac):
     """Check each transform ``T_map_sub = (R[h], t[h])`` against the map.
+
+    The offsets are per submap plane: ``max_offset``, ``inlier_m`` and ``conflict_offset`` below are ``max_offset0``,
+    ``inlier0`` and ``conflict0`` times plane j's factors in ``offset_scale`` (S, 2): match and projection, conflict
+    (ones but for a noisy sensor's near planes, ``Relocalizer._offset_scale``).
 
     For every submap plane j (the three planes of the candidate first, then ``plane_order``), its verification
     samples are moved into the map; a map plane i is a candidate when its normal is within the match angle and the
@@ -822,6 +826,10 @@ def verify_transforms(R, t, cand, plane_order, sub_normals, sub_offsets, sub_cen
                     continue
             evaluated += 1
             processed += 1
+            # This plane's offsets (``offset_scale`` (S, 2): match and projection, conflict).
+            max_offset = max_offset0 * offset_scale[j, 0]
+            inlier_m = inlier0 * offset_scale[j, 0]
+            conflict_offset = conflict0 * offset_scale[j, 1]
             # The plane in the map frame.
             nx = R[h, 0, 0] * sub_normals[j, 0] + R[h, 0, 1] * sub_normals[j, 1] + R[h, 0, 2] * sub_normals[j, 2]
             ny = R[h, 1, 0] * sub_normals[j, 0] + R[h, 1, 1] * sub_normals[j, 1] + R[h, 1, 2] * sub_normals[j, 2]
@@ -1572,8 +1580,8 @@ def _warmup() -> None:
     for use_overlap in (True, False):
         verify_transforms(Rs, ts, cand, np.arange(3, dtype=np.int32), normals, offsets, centroids, areas, vs_ptr, pts,
                           normals, offsets, areas, 0.5, slots, slot_pos, hptr, di, 0.25, 0.99, 0.1, 0.05, True,
-                          0.5, use_overlap, 0.3, 3, 0.5, 0.3, slots, 0.25, 0.5, 0.25, True, 0.1, om, op, oo, ost,
-                          on, oe, ou, of, ok, off)
+                          0.5, use_overlap, 0.3, 3, 0.5, 0.3, slots, 0.25, 0.5, 0.25, True, 0.1, np.ones((S, 2)), om,
+                          op, oo, ost, on, oe, ou, of, ok, off)
     bases = np.zeros((3, 2, 3))
     bases[:, 0] = normals[[1, 2, 0]]
     bases[:, 1] = normals[[2, 0, 1]]

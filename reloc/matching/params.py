@@ -104,6 +104,12 @@ class MatchingParams:
     noisy_rival_unknown_weight: float = 0.5
     hidden_rival_credit: bool = True
     sealed_rival_credit: bool = False
+    near_decision_offsets: bool = False
+    # Set by scaled_to_sensor for near_decision_offsets: the exponent k of the sensor's law sigma = c z^k (0: not
+    # scaled to a sensor) and the decision offsets before they were raised to follow its noise at 3 m.
+    noise_depth_power: float = 0.0
+    decision_offset_floor_m: float = 0.03
+    decision_conflict_floor_m: float = 0.05
     evidence_area_m2: float = 1.0
     distinct_translation_m: float = 0.25
     distinct_rotation_rad: float = math.radians(5.0)
@@ -259,6 +265,7 @@ class MatchingParams:
             noisy_rival_unknown_weight=e.noisy_rival_unknown_weight,
             hidden_rival_credit=e.hidden_rival_credit,
             sealed_rival_credit=e.sealed_rival_credit,
+            near_decision_offsets=e.near_decision_offsets,
             evidence_area_m2=e.evidence_area_m2,
             distinct_translation_m=e.distinct_translation_m,
             distinct_rotation_rad=r(e.distinct_rotation_deg),
@@ -333,8 +340,13 @@ def scaled_to_sensor(params: MatchingParams, noise_model: str, noise_coeff: floa
     where 0.5 let in 5 and 4 false positives over the same suites (for 7 and 9 true poses more)."""
     sigma = sensor_sigma_m(noise_model, noise_coeff)
     noisy = sigma > params.noisy_sensor_sigma_m
+    first = params.noise_depth_power <= 0
     return replace(
         params,
+        noise_depth_power=2.0 if noise_model in ("kinect", "stereo") else (1.0 if noise_model == "tof" else 0.0),
+        # The offsets before any scaling (params scaled once already keep theirs).
+        decision_offset_floor_m=params.decision_max_offset_m if first else params.decision_offset_floor_m,
+        decision_conflict_floor_m=params.decision_conflict_m if first else params.decision_conflict_floor_m,
         decision_max_offset_m=max(params.decision_max_offset_m, DECISION_SIGMAS * sigma),
         decision_conflict_m=max(params.decision_conflict_m, CONFLICT_SIGMAS * sigma),
         occlusion=params.occlusion and sigma <= params.occlusion_max_sensor_sigma_m,

@@ -343,7 +343,8 @@ class Relocalizer:
         decision. So a true pose that the map covers badly (it missed a plane there) still competes with a
         symmetric twin the map happens to cover, and the query is rejected as ambiguous instead of guessed.
         ``tight`` uses the final tolerances (``final_max_angle_rad``, ``final_max_offset_m``) for the refined pose;
-        ``max_offset_m`` then replaces the final offset (and caps the projection inlier distance).
+        ``max_offset_m`` then replaces the final offset (and caps the projection inlier distance); with
+        ``near_decision_offsets`` these decision offsets are set per plane by its distance (``_offset_scale``).
         """
         p = self.params
         H, S = R.shape[0], len(used)
@@ -367,10 +368,29 @@ class Relocalizer:
             p.min_projection_ratio, p.overlap, p.min_overlap, min_matched, p.min_competitor_fraction,
             p.min_counted_area_m2, ix.free_slots, ix.free_voxel_m, p.max_free_fraction, p.free_far_min_fraction,
             require_triplet, max(final_offset, p.decision_conflict_m) if tight else p.match_max_offset_m,
+            self._offset_scale(used, final_offset, max(final_offset, p.decision_conflict_m))
+            if tight and max_offset_m is not None else np.ones((S, 2)),
             out["match"], out["proj"], out["over"], out["state"], out["n_matched"], out["explained"], out["unknown"],
             out["free"], out["passed"], out["free_frac"],
         )
         return Verification(**out, evaluated=int(evaluated))
+
+    def _offset_scale(self, used: PlaneSet, max_offset: float, conflict: float) -> np.ndarray:
+        """(S, 2) factors on the decision's match and conflict offsets for each plane of ``used``: with
+        ``near_decision_offsets``, offsets raised to follow the sensor's noise at 3 m (``scaled_to_sensor``) come
+        down with the noise at the plane's distance from the nearest camera of its window, never below their
+        floors (``decision_offset_floor_m``, ``decision_conflict_floor_m``); 1 elsewhere."""
+        p = self.params
+        S = len(used)
+        scale = np.ones((S, 2))
+        if not p.near_decision_offsets or p.noise_depth_power <= 0 or S == 0:
+            return scale
+        views = used.viewpoints if used.viewpoints is not None else np.zeros((1, 3))
+        d = np.min(np.linalg.norm(used.centroids[:, None, :] - views[None, :, :], axis=2), axis=1)
+        f = (np.minimum(d, 3.0) / 3.0) ** p.noise_depth_power
+        scale[:, 0] = np.maximum(f, min(1.0, p.decision_offset_floor_m / max_offset))
+        scale[:, 1] = np.maximum(f, min(1.0, p.decision_conflict_floor_m / conflict))
+        return scale
 
     def mark_hidden(self, used: PlaneSet, vs_ptr, vs_pts, R, t, state: np.ndarray, exact: bool = False,
                     sealed: bool = False) -> np.ndarray:
