@@ -1311,33 +1311,39 @@ def test_a_noisy_sensors_near_planes_are_judged_at_their_own_distance():
     """A panel 6.5 cm in front of the living room's x = 6 wall, unknown to the map. With a stereo camera's decision
     offsets (2.3 and 3.85 sigma at 3 m: 5.0 and 8.4 cm) it is near the wall, neither matched nor in conflict, from
     2.1 m as from 4.5 m. With ``near_decision_offsets`` the offsets follow the noise at the plane's distance from the
-    camera, never below the floors of 3 and 5 cm: from 2.1 m (sigma 1.1 cm) it is in conflict with the wall; from
-    4.5 m the offsets of 3 m stay. A Kinect-class sensor's offsets are their floors already and do not change."""
+    camera, never below the floors of 3 and 5 cm: from 2.1 m (sigma 1.1 cm) the 1.2 m^2 panel is in conflict with
+    the wall; from 4.5 m the offsets of 3 m stay, as they do for a 0.42 m^2 panel (under
+    ``near_decision_min_area_m2``). A Kinect-class sensor's offsets are their floors already and do not change."""
     from reloc.evaluation.synthetic import Rect
     from reloc.matching.params import scaled_to_sensor
 
     rects = furnished_room("living")
-    panel_rect = Rect((5.935, 2.5, 1.3), (-1, 0, 0), (0, 1, 0), 0.6, 0.5)
     states = {}
-    for eye_x in (3.9, 1.5):
-        T = look_at((eye_x, 2.5, 1.4), (6.0, 2.5, 1.1))
-        sub = view_planes(rects + [panel_rect], T)
-        panel = int(np.argmin(np.abs(sub.areas - 1.2)))
-        assert sub.areas[panel] == pytest.approx(1.2, abs=0.02)
-        for near in (False, True):
-            for noise, coeff in (("stereo", 2.4e-3), ("kinect", 1.425e-3)):
-                params = scaled_to_sensor(MatchingParams(near_decision_offsets=near), noise, coeff)
-                reloc = Relocalizer(scene_planes(rects), params)
-                used, order, vs_ptr, vs_pts = reloc.prepare(sub)
-                v = _verify_at(reloc, used, vs_ptr, vs_pts, T, tight=True, max_offset_m=params.decision_max_offset_m)
-                states[eye_x, near, noise] = int(v.state[0][int(np.flatnonzero(order == panel)[0])])
-                # Every other plane of the view is matched at its true pose, whatever the offsets.
-                others = np.delete(v.state[0], int(np.flatnonzero(order == panel)[0]))
-                assert np.all((others == 0) | (others == 4))
-    assert states[3.9, False, "stereo"] == 5 and states[1.5, False, "stereo"] == 5  # near
-    assert states[3.9, True, "stereo"] == 2  # in conflict, seen from 2.1 m
-    assert states[1.5, True, "stereo"] == 5  # from 4.5 m, as before
-    assert all(states[x, near, "kinect"] == 2 for x in (3.9, 1.5) for near in (False, True))
+    for half_w, half_h in ((0.6, 0.5), (0.35, 0.3)):
+        area = round(4 * half_w * half_h, 2)
+        panel_rect = Rect((5.935, 2.5, 1.3), (-1, 0, 0), (0, 1, 0), half_w, half_h)
+        for eye_x in (3.9, 1.5):
+            T = look_at((eye_x, 2.5, 1.4), (6.0, 2.5, 1.1))
+            sub = view_planes(rects + [panel_rect], T)
+            panel = int(np.argmin(np.abs(sub.areas - area)))
+            assert sub.areas[panel] == pytest.approx(area, abs=0.02)
+            for near in (False, True):
+                for noise, coeff in (("stereo", 2.4e-3), ("kinect", 1.425e-3)):
+                    params = scaled_to_sensor(MatchingParams(near_decision_offsets=near), noise, coeff)
+                    reloc = Relocalizer(scene_planes(rects), params)
+                    used, order, vs_ptr, vs_pts = reloc.prepare(sub)
+                    v = _verify_at(reloc, used, vs_ptr, vs_pts, T, tight=True,
+                                   max_offset_m=params.decision_max_offset_m)
+                    j = int(np.flatnonzero(order == panel)[0])
+                    states[area, eye_x, near, noise] = int(v.state[0][j])
+                    # Every other plane of the view is matched at its true pose, whatever the offsets.
+                    others = np.delete(v.state[0], j)
+                    assert np.all((others == 0) | (others == 4))
+    for area in (1.2, 0.42):
+        assert states[area, 3.9, False, "stereo"] == 5 and states[area, 1.5, False, "stereo"] == 5  # near
+        assert states[area, 3.9, True, "stereo"] == (2 if area > 0.5 else 5)  # in conflict, seen from 2.1 m
+        assert states[area, 1.5, True, "stereo"] == 5  # from 4.5 m, as before
+        assert all(states[area, x, near, "kinect"] == 2 for x in (3.9, 1.5) for near in (False, True))
     # The floors are the offsets before scaling, also when params are scaled twice (the demo scales a config's).
     once = scaled_to_sensor(MatchingParams(near_decision_offsets=True), "stereo", 2.4e-3)
     twice = scaled_to_sensor(once, "stereo", 2.4e-3)

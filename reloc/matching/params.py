@@ -105,6 +105,7 @@ class MatchingParams:
     hidden_rival_credit: bool = True
     sealed_rival_credit: bool = False
     near_decision_offsets: bool = False
+    near_decision_min_area_m2: float = 0.5
     # Set by scaled_to_sensor for near_decision_offsets: the exponent k of the sensor's law sigma = c z^k (0: not
     # scaled to a sensor) and the decision offsets before they were raised to follow its noise at 3 m.
     noise_depth_power: float = 0.0
@@ -266,6 +267,7 @@ class MatchingParams:
             hidden_rival_credit=e.hidden_rival_credit,
             sealed_rival_credit=e.sealed_rival_credit,
             near_decision_offsets=e.near_decision_offsets,
+            near_decision_min_area_m2=e.near_decision_min_area_m2,
             evidence_area_m2=e.evidence_area_m2,
             distinct_translation_m=e.distinct_translation_m,
             distinct_rotation_rad=r(e.distinct_rotation_deg),

@@ -379,7 +379,8 @@ class Relocalizer:
         """(S, 2) factors on the decision's match and conflict offsets for each plane of ``used``: with
         ``near_decision_offsets``, offsets raised to follow the sensor's noise at 3 m (``scaled_to_sensor``) come
         down with the noise at the plane's distance from the nearest camera of its window, never below their
-        floors (``decision_offset_floor_m``, ``decision_conflict_floor_m``); 1 elsewhere."""
+        floors (``decision_offset_floor_m``, ``decision_conflict_floor_m``); 1 elsewhere, and for planes smaller
+        than ``near_decision_min_area_m2``."""
         p = self.params
         S = len(used)
         scale = np.ones((S, 2))
@@ -390,6 +391,7 @@ class Relocalizer:
         f = (np.minimum(d, 3.0) / 3.0) ** p.noise_depth_power
         scale[:, 0] = np.maximum(f, min(1.0, p.decision_offset_floor_m / max_offset))
         scale[:, 1] = np.maximum(f, min(1.0, p.decision_conflict_floor_m / conflict))
+        scale[used.areas < p.near_decision_min_area_m2] = 1.0
         return scale
 
     def mark_hidden(self, used: PlaneSet, vs_ptr, vs_pts, R, t, state: np.ndarray, exact: bool = False,
