@@ -615,8 +615,8 @@ class EvaluationConfig(_Section):
     near_decision_offsets: bool = Field(
         False,
         description="Where the decision offsets are raised to follow a noisy sensor (DECISION_SIGMAS and "
-        "CONFLICT_SIGMAS times its noise at 3 m), each submap plane nearer than 3 m to the nearest camera of its "
-        "window gets the offsets of the noise at that distance, never below decision_max_offset_m and "
+        "CONFLICT_SIGMAS times its noise at 3 m), each submap plane of near_decision_min_area_m2 or more nearer "
+        "than 3 m to the nearest camera of its window gets the offsets of the noise at that distance, never below decision_max_offset_m and "
         "decision_conflict_m: a stereo plane seen from 2 m is measured to 1 cm, and a rival that puts it 6 cm off "
         "a map surface facing its way contradicts the map there. Off by default: over nine stereo suites it "
         "answers 26 views more and adds one false positive (docs/BENCHMARKS.md, 'A noisy sensor's near planes "
@@ -626,8 +626,8 @@ class EvaluationConfig(_Section):
         0.5, ge=0.0,
         description="With near_decision_offsets, planes smaller than this keep the offsets of 3 m: a small plane's "
         "offset, and the map's small planes (facets of furniture), are less sure than the noise at its distance "
-        "says; at 0 two twin-room views and a symmetric-room view were answered because a rival or the truth "
-        "lost a 0.35-0.47 m^2 plane to a conflict.",
+        "says; at 0 a twin-room view and a symmetric-room view, labelled ambiguous, were answered because a "
+        "rival or the truth lost a plane of 0.47 or 0.35 m^2 to a conflict.",
     )
     optimistic_rivals: bool = Field(
         True,
