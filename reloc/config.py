@@ -616,11 +616,11 @@ class EvaluationConfig(_Section):
         False,
         description="Where the decision offsets are raised to follow a noisy sensor (DECISION_SIGMAS and "
         "CONFLICT_SIGMAS times its noise at 3 m), each submap plane of near_decision_min_area_m2 or more nearer "
-        "than 3 m to the nearest camera of its window gets the offsets of the noise at that distance, never below decision_max_offset_m and "
-        "decision_conflict_m: a stereo plane seen from 2 m is measured to 1 cm, and a rival that puts it 6 cm off "
-        "a map surface facing its way contradicts the map there. Off by default: over nine stereo suites it "
-        "answers 26 views more and adds one false positive (docs/BENCHMARKS.md, 'A noisy sensor's near planes "
-        "judged at their own distance').",
+        "than 3 m to the nearest camera of its window gets the offsets of the noise at that distance, never below "
+        "decision_max_offset_m and decision_conflict_m: a stereo plane seen from 2 m is measured to 1 cm, and a "
+        "rival that puts it 6 cm off a map surface facing its way contradicts the map there. Off by default: over "
+        "nine stereo suites it answers 26 views more and adds one false positive (docs/BENCHMARKS.md, 'A noisy "
+        "sensor's near planes judged at their own distance').",
     )
     near_decision_min_area_m2: float = Field(
         0.5, ge=0.0,

@@ -10,6 +10,7 @@ import math
 from dataclasses import dataclass, fields, replace
 
 from reloc._params import with_changes
+from reloc.extraction.params import noise_law_code
 
 __all__ = ["MatchingParams", "ABLATIONS", "ablation_params", "scaled_to_sensor", "sensor_sigma_m"]
 
@@ -345,7 +346,7 @@ def scaled_to_sensor(params: MatchingParams, noise_model: str, noise_coeff: floa
     first = params.noise_depth_power <= 0
     return replace(
         params,
-        noise_depth_power=2.0 if noise_model in ("kinect", "stereo") else (1.0 if noise_model == "tof" else 0.0),
+        noise_depth_power=float(noise_law_code(noise_model)),
         # The offsets before any scaling (params scaled once already keep theirs).
         decision_offset_floor_m=params.decision_max_offset_m if first else params.decision_offset_floor_m,
         decision_conflict_floor_m=params.decision_conflict_m if first else params.decision_conflict_floor_m,
