@@ -105,6 +105,7 @@ class MatchingParams:
     noisy_rival_unknown_weight: float = 0.5
     hidden_rival_credit: bool = True
     sealed_rival_credit: bool = False
+    small_rival_credit: bool = True
     near_decision_offsets: bool = False
     near_decision_min_area_m2: float = 0.5
     # Set by scaled_to_sensor for near_decision_offsets: the exponent k of the sensor's law sigma = c z^k (0: not
@@ -267,6 +268,7 @@ class MatchingParams:
             noisy_rival_unknown_weight=e.noisy_rival_unknown_weight,
             hidden_rival_credit=e.hidden_rival_credit,
             sealed_rival_credit=e.sealed_rival_credit,
+            small_rival_credit=e.small_rival_credit,
             near_decision_offsets=e.near_decision_offsets,
             near_decision_min_area_m2=e.near_decision_min_area_m2,
             evidence_area_m2=e.evidence_area_m2,

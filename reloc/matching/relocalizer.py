@@ -375,6 +375,35 @@ class Relocalizer:
         )
         return Verification(**out, evaluated=int(evaluated))
 
+    def mark_small_unknown(self, used: PlaneSet, vs_ptr, vs_pts, R, t, cand, v: Verification) -> np.ndarray:
+        """Mark the planes of ``used`` too small to count (``v.state`` 4, under ``min_counted_area_m2``) that land where
+        the map knows nothing under each pose ``(R[h], t[h])`` (of candidate ``cand[h]``) as unknown to the map (state
+        1, changed in place, with their share in known free space in ``v.free_frac``), judged as a plane that counts
+        is at the decision's offsets: no map surface facing the same way near it, and no more than
+        ``max_free_fraction`` of it in the map's known free space (a small plane there stays too small to count: it
+        contradicts no pose, and earns nothing). Returns the (H, S) bool mask of the planes marked.
+
+        For the rivals' credit (``small_rival_credit``): a twin room that the mapping runs covered less completely
+        lacks the small faces of its furniture (0.13-0.26 m^2), which the better-covered room's pose matches and
+        the twin's pose leaves where its map knows nothing; counted for the winner only, eight of them put a view
+        labelled ambiguous 2.1 times ahead of its twin (Kinect, replicate B, meeting_rooms/robot/2).
+        """
+        p = self.params
+        small = v.state == 4
+        if not small.any():
+            return small
+        every = replace(p, min_counted_area_m2=0.0, max_free_fraction=1.0)  # every plane judged; none fails the pose
+        saved, self.params = self.params, every
+        try:
+            w = self.verify(used, vs_ptr, vs_pts, R, t, cand, require_triplet=False, tight=True,
+                            max_offset_m=p.decision_max_offset_m)
+        finally:
+            self.params = saved
+        small &= (w.state == 1) & (w.free_frac <= p.max_free_fraction)
+        v.state[small] = 1
+        v.free_frac[small] = w.free_frac[small]
+        return small
+
     def _offset_scale(self, used: PlaneSet, max_offset: float, conflict: float) -> np.ndarray:
         """(S, 2) factors on the decision's match and conflict offsets for each plane of ``used``: with
         ``near_decision_offsets``, offsets raised to follow the sensor's noise at 3 m (``scaled_to_sensor``) come
@@ -579,12 +608,19 @@ class Relocalizer:
         sharp = self.verify(used, vs_ptr, vs_pts, R, t, cand, require_triplet=False, tight=True,
                             max_offset_m=p.decision_max_offset_m)
         v = replace(sharp, n_matched=v.n_matched, explained=v.explained, unknown=v.unknown, passed=v.passed)
+        small = None
+        if p.small_rival_credit and p.optimistic_rivals and self._map_knows_free_space:
+            small = self.mark_small_unknown(used, vs_ptr, vs_pts, R, t, cand, v)
         hidden = None
         if p.occlusion:
             # The exact shares cost a full count; only rivals that get credit use them (see :meth:`_decide`).
             exact = p.hidden_rival_credit and p.optimistic_rivals and self._map_knows_free_space
             frac = self.mark_hidden(used, vs_ptr, vs_pts, R, t, v.state, exact=exact)
             hidden = frac[v.passed] if exact else None
+            if small is not None:
+                # A small plane behind a map surface earns no credit (its hidden share), but counts against no pose:
+                # planes too small to count count only when they match.
+                v.state[small & (v.state == 6)] = 4
             contradicted = np.maximum(contradicted, largest_area(v.state, used.areas, 6))
         elif p.sealed_rival_credit and p.hidden_rival_credit and p.optimistic_rivals and self._map_knows_free_space:
             # Occlusion off (a noisy sensor's map closes doorways): a rival's credit for a plane still shrinks with
