@@ -1048,10 +1048,11 @@ def test_a_sealed_map_surface_hides_only_where_the_map_never_saw_past_it():
 def test_a_small_plane_where_the_map_knows_nothing_earns_a_rival_credit():
     """A panel of 0.25 m^2 (under ``min_counted_area_m2``) stands in a 6 x 4 m room that the map holds without it:
     the small face of furniture that a mapping run saw in one twin room and not in the other. Weighed as a mode of
-    the decision over refined poses, it is unknown to the map (state 1, what a rival's credit is for) with
+    the decision over refined poses, beside the view turned half round about the room's centre (a second mode, so
+    that there is a rival), it is unknown to the map (state 1, what a rival's credit is for) with
     ``small_rival_credit`` where the map knows nothing around it, and stays too small to count (state 4) without
     the switch, where the map saw its place empty, and where a map surface facing the same way lies 0.2 m behind
-    it (a small plane in conflict counts against no pose)."""
+    it (a small plane in conflict counts against no pose). With one mode, no rival, it is not judged (state 4)."""
     from dataclasses import replace
 
     from reloc.evaluation.synthetic import Rect
@@ -1061,6 +1062,8 @@ def test_a_small_plane_where_the_map_knows_nothing_earns_a_rival_credit():
     panel = Rect((3.0, 2.0, 1.0), (1, 0, 0), (0, 1, 0), 0.25, 0.25)
     behind = Rect((2.8, 2.0, 1.0), (1, 0, 0), (0, 1, 0), 0.6, 0.6)
     T = look_at((5.5, 2.2, 1.3), (0.0, 1.8, 1.0))
+    half = transform_from_rotation_translation(rotation_from_axis_angle(np.array([0.0, 0.0, math.pi])),
+                                               np.array([6.0, 4.0, 0.0]))  # half a turn about (3, 2)
     sub = view_planes(walls + [panel], T)
     voxel = 0.15
     g = np.stack(np.meshgrid(np.arange(voxel / 2, 6.0, voxel), np.arange(voxel / 2, 4.0, voxel),
@@ -1068,21 +1071,25 @@ def test_a_small_plane_where_the_map_knows_nothing_earns_a_rival_credit():
     g = g[np.all((g > 0.3) & (g < np.array([5.7, 3.7, 2.4])), axis=1)]  # carved short of the walls
     around = np.all(np.abs(g - np.array(panel.center)) < 0.6, axis=1)
     got = {}
-    for name, extra, free, credit in (("unknown", [], g[~around], True), ("unknown, off", [], g[~around], False),
-                                      ("seen empty", [], g, True), ("surface behind", [behind], g[~around], True)):
+    for name, extra, free, credit, poses in (
+            ("unknown", [], g[~around], True, [T, half @ T]), ("unknown, off", [], g[~around], False, [T, half @ T]),
+            ("seen empty", [], g, True, [T, half @ T]), ("surface behind", [behind], g[~around], True, [T, half @ T]),
+            ("one mode", [], g[~around], True, [T])):
         planes = scene_planes(walls + extra)
         pm = PlaneMap(planes, np.ones(len(planes), np.int64), free_keys=np.unique(K.cell_keys(free, voxel)),
                       free_voxel_m=voxel)
         reloc = Relocalizer(pm, replace(MatchingParams(), small_rival_credit=credit))
-        tight, used, (k,) = _tightened_at(reloc, sub, [T])
+        tight, used, (k, *_) = _tightened_at(reloc, sub, poses)
         j = int(np.argmin(np.linalg.norm(used.centroids @ T[:3, :3].T + T[:3, 3] - np.array(panel.center), axis=1)))
-        assert len(tight) == 1 and used.areas[j] < reloc.params.min_counted_area_m2
+        assert len(tight) == len(poses) and used.areas[j] < reloc.params.min_counted_area_m2
+        assert np.linalg.norm(tight.t[k] - T[:3, 3]) < 0.01
         assert np.linalg.norm(used.centroids[j] @ T[:3, :3].T + T[:3, 3] - np.array(panel.center)) < 0.05
         got[name] = (int(tight.state[k, j]), round(float(tight.free_frac[k, j]), 2))
     assert got["unknown"] == (1, 0.0)
     assert got["unknown, off"] == (4, 0.0)
     assert got["seen empty"] == (4, 0.0)
     assert got["surface behind"] == (4, 0.0)
+    assert got["one mode"] == (4, 0.0)
 
 
 def test_a_plane_seen_through_the_back_of_a_map_surface_is_hidden_when_the_camera_stands_well_behind_it():

@@ -747,7 +747,8 @@ def verify_transforms(R, t, cand, plane_order, sub_normals, sub_offsets, sub_cen
     ``inlier0`` and ``conflict0`` times plane j's factors in ``offset_scale`` (S, 2): match and projection, conflict
     (ones but for a noisy sensor's near planes, ``Relocalizer._offset_scale``).
 
-    For every submap plane j (the three planes of the candidate first, then ``plane_order``), its verification
+    For every submap plane j (the three planes of the candidate first, then ``plane_order``: every plane, or the
+    planes to judge, the others left as not judged), its verification
     samples are moved into the map; a map plane i is a candidate when its normal is within the match angle and the
     moved centroid lies within ``max_offset`` of it. With ``use_overlap`` candidates come from the spatial hash
     (a sample counts toward overlap when it falls near a sample of i: Eq. 11 with the samples standing for the
@@ -817,7 +818,7 @@ def verify_transforms(R, t, cand, plane_order, sub_normals, sub_offsets, sub_cen
         n_free = 0
         ok = True
         processed = 0
-        for step in range(S + 3):
+        for step in range(plane_order.shape[0] + 3):
             if step < 3:
                 j = cand[h, step]
             else:
