@@ -334,7 +334,7 @@ class Relocalizer:
 
     def verify(self, used: PlaneSet, vs_ptr, vs_pts, R, t, cand, *, require_triplet: bool = True,
                tight: bool = False, max_offset_m: float | None = None,
-               every_plane: np.ndarray | None = None) -> Verification:
+               judge_planes: np.ndarray | None = None) -> Verification:
         """Verify transforms ``(R, t)`` of candidates ``cand`` against the map; see ``verify_transforms``.
 
         A hypothesis passes (competes) when it could be the truth: its triplet matches, nothing it places lies in the
@@ -346,7 +346,7 @@ class Relocalizer:
         ``tight`` uses the final tolerances (``final_max_angle_rad``, ``final_max_offset_m``) for the refined pose;
         ``max_offset_m`` then replaces the final offset (and caps the projection inlier distance); with
         ``near_decision_offsets`` these decision offsets are set per plane by its distance (``_offset_scale``).
-        ``every_plane`` (indices into ``used``, besides each candidate's three planes) judges only those planes, the
+        ``judge_planes`` (indices into ``used``, besides each candidate's three planes) judges only those planes, the
         ones too small to count as well, and lets no plane in known free space fail a hypothesis (its share there is
         still reported): what each of them is under the poses, for :meth:`mark_small_unknown`.
         """
@@ -363,7 +363,7 @@ class Relocalizer:
         final_offset = p.final_max_offset_m if max_offset_m is None else max_offset_m
         evaluated = K.verify_transforms(
             np.ascontiguousarray(R), np.ascontiguousarray(t), np.ascontiguousarray(cand),
-            np.arange(S, dtype=np.int32) if every_plane is None else np.ascontiguousarray(every_plane, dtype=np.int32),
+            np.arange(S, dtype=np.int32) if judge_planes is None else np.asarray(judge_planes, dtype=np.int32),
             used.normals, used.offsets, used.centroids, used.areas, vs_ptr, vs_pts, ix.normals, ix.offsets, ix.areas,
             p.min_area_ratio if p.structural_constraints else 0.0, ix.hash_slots, ix.hash_slot_pos, ix.hash_ptr,
             ix.hash_ids, ix.cell_m,
@@ -371,8 +371,8 @@ class Relocalizer:
             final_offset if tight else p.match_max_offset_m,
             min(p.projection_inlier_m, final_offset) if tight else p.projection_inlier_m, p.projection,
             p.min_projection_ratio, p.overlap, p.min_overlap, min_matched, p.min_competitor_fraction,
-            p.min_counted_area_m2 if every_plane is None else 0.0, ix.free_slots, ix.free_voxel_m,
-            p.max_free_fraction if every_plane is None else 1.0, p.free_far_min_fraction,
+            p.min_counted_area_m2 if judge_planes is None else 0.0, ix.free_slots, ix.free_voxel_m,
+            p.max_free_fraction if judge_planes is None else 1.0, p.free_far_min_fraction,
             require_triplet, max(final_offset, p.decision_conflict_m) if tight else p.match_max_offset_m,
             self._offset_scale(used, final_offset, max(final_offset, p.decision_conflict_m))
             if tight and max_offset_m is not None else np.ones((S, 2)),
@@ -399,7 +399,7 @@ class Relocalizer:
         if not small.any():
             return small
         w = self.verify(used, vs_ptr, vs_pts, R, t, cand, require_triplet=False, tight=True,
-                        max_offset_m=p.decision_max_offset_m, every_plane=np.flatnonzero(small.any(axis=0)))
+                        max_offset_m=p.decision_max_offset_m, judge_planes=np.flatnonzero(small.any(axis=0)))
         small &= (w.state == 1) & (w.free_frac <= p.max_free_fraction)
         v.state[small] = 1
         v.free_frac[small] = w.free_frac[small]
