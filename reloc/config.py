@@ -543,6 +543,12 @@ class EvaluationConfig(_Section):
         description="Matched planes along the translation's weakest direction must add up to this area: no small "
         "plane alone may pin the pose along an axis (part of scene uniqueness).",
     )
+    weak_slide_range_m: float = Field(
+        8.0, ge=0,
+        description="A pose short of that support is still accepted when it is the only peak along its weakest "
+        "direction: every copy slid 0.5 m or more along it, up to this far, fails verification or matches at least "
+        "2 planes fewer (the extents of walls, door niches and furniture pin it; 0 = off).",
+    )
     hidden_against_support: bool = Field(
         True,
         description="Planes the pose puts where the map says its cameras could not see them (behind the map's "

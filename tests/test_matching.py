@@ -1271,8 +1271,9 @@ def test_planes_the_map_hides_take_their_area_off_the_weakest_directions_support
     """A view along a 30 m corridor (its ends out of range) is pinned along it by one cabinet face (0.6 m^2 seen,
     above the 0.4 needed) and sees, through a doorway, a wall of the room beyond that also faces along the
     corridor (0.56 m^2). Where the map's wall has no doorway (a look-alike place), that wall lies behind the map's
-    wall: the pose keeps 0.6 - 0.56 m^2 along the corridor and is rejected, by ``confirm`` and ``locate`` alike;
-    through the doorway, with ``hidden_against_support`` off or with the support test off (0 m^2, as in the paper's
+    wall: the pose keeps 0.6 - 0.56 m^2 along the corridor and is rejected, by ``confirm`` and ``locate`` alike
+    (slid along the corridor, ``weak_slide_range_m``, a copy 8 m along matches 4 of its 5 planes: no peak); through
+    the doorway, with ``hidden_against_support`` off or with the support test off (0 m^2, as in the paper's
     rules) it stands (within 1 cm). The look-alike's 5 matched planes less the hidden one leave 4, which
     ``min_uncontradicted_planes`` rejects first; it is off here, to test the support alone."""
     from reloc.evaluation.synthetic import Rect, room
@@ -1301,12 +1302,48 @@ def test_planes_the_map_hides_take_their_area_off_the_weakest_directions_support
     for how in ("confirm", "locate"):
         assert outcomes["solid", "on", how] == ("pose weakly constrained: 0.60 m^2 of matched planes along its "
                                                 "weakest direction, less 0.56 m^2 of planes the map hides from its "
-                                                "cameras (needs 0.4)")
+                                                "cameras (needs 0.4); slid -8.00 m along it, it matches 4 planes "
+                                                "against 5")
         assert outcomes["doorway", "on", how] == "relocalized"
         assert outcomes["solid", "off", how] == outcomes["solid", "no support test", how] == "relocalized"
         assert outcomes["solid", "net uniqueness", how] == ("contradicted by the map: 5 planes matched less 1 in "
                                                             "conflict with it or hidden behind it leaves 4, under 5")
         assert outcomes["doorway", "net uniqueness", how] == "relocalized"
+
+
+def test_a_weakly_constrained_pose_stands_when_sliding_it_along_its_weak_direction_loses_planes():
+    """A view along a 30 m corridor (its ends out of range) is pinned along it by one cabinet's front alone (0.32
+    m^2 seen, under the 0.4 needed). With ``weak_slide_range_m`` the pose, slid along the corridor from 0.5 m to 8 m
+    each way, is accepted when every slid copy matches at least 2 planes fewer: the cabinet's side and top end where
+    it ends. A thin panel of two small faces loses one plane only; a second cabinet 3 m along gives a copy that
+    matches as many planes, which ``confirm`` (no rivals) rejects by the slide and ``locate`` as ambiguous. Off, all
+    three are rejected as weakly constrained."""
+    from reloc.evaluation.synthetic import Rect
+
+    corridor = room(30.0, 2.0, 2.7)
+    cabinet = box((11.5, 1.775), (0.3, 0.45, 0.8))
+    panel = [Rect((11.5, y, 0.35), (1, 0, 0), (0, 1, 0), 0.15, 0.35) for y in (1.85, 1.55)]
+    second = box((8.5, 1.775), (0.3, 0.45, 0.8))
+    T = look_at((15.5, 0.9, 1.3), (10.0, 1.6, 0.8))
+    got = {}
+    for name, things in (("cabinet", cabinet), ("panel", panel), ("two cabinets", cabinet + second)):
+        sub = view_planes(corridor + things, T)
+        for slide in (0.0, 8.0):
+            reloc = Relocalizer(scene_planes(corridor + things), MatchingParams(weak_slide_range_m=slide))
+            for how, r in (("confirm", reloc.confirm(sub, T)), ("locate", reloc.locate(sub))):
+                if r.relocalized:
+                    assert pose_error(r.T_map_cam, T)[0] < 0.01
+                got[name, slide, how] = "relocalized" if r.relocalized else r.reason
+    weak = re.compile(r"pose weakly constrained: (0\.32|0\.00) m\^2 of matched planes along its weakest direction "
+                      r"\(needs 0\.4\)")
+    for how in ("confirm", "locate"):
+        for name in ("cabinet", "panel"):
+            assert weak.fullmatch(got[name, 0.0, how]), got[name, 0.0, how]
+        assert got["cabinet", 8.0, how] == "relocalized"
+        assert got["panel", 8.0, how].endswith("(needs 0.4); slid -8.00 m along it, it matches 4 planes against 5")
+        assert got["two cabinets", 8.0, "locate"].startswith("ambiguous: ")
+    assert weak.fullmatch(got["two cabinets", 0.0, "confirm"])
+    assert got["two cabinets", 8.0, "confirm"].endswith("; slid -3.00 m along it, it matches 6 planes against 6")
 
 
 def test_hidden_planes_count_against_a_pose_as_conflicts_do():

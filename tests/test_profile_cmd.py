@@ -15,7 +15,10 @@ from reloc.profiling import Profiler
 PIPELINE_STAGES = {"frame", "extract", "submap", "reloc", *(f"extract.{s}" for s in EXTRACT_STAGES),
                    *(f"reloc.{s}" for s in RELOC_STAGES)}
 ROWS = {"single_frame", "local_observation", "localization", "pose_likelihood", "other", "total"}
-SHARE_TOL = 0.05  # the four paper rows leave out only the glue between stages (well under 5% of a frame)
+# The four paper rows leave out only the glue between stages: 1-2 % of a frame on an idle machine, 5.0-5.2 % in
+# some runs with two other processes on the two cores (the process descheduled between stages); a stage left out
+# of the rows shows as more: extraction and the submap are 25-55 % of these frames, localization 9-16 %.
+SHARE_TOL = 0.08
 ROUND_TOL_MS = 1e-3  # samples are written rounded to 1e-5 ms; sums of a few of them
 
 

@@ -53,6 +53,7 @@ class MatchingParams:
     scene_uniqueness: bool = True
     min_matched_planes: int = 5
     min_direction_support_m2: float = 0.4
+    weak_slide_range_m: float = 8.0
     hidden_against_support: bool = True
     max_conflict_area_m2: float = 1.0
     conflict_vetoes_rivals: bool = True
@@ -217,6 +218,7 @@ class MatchingParams:
             scene_uniqueness=e.scene_uniqueness,
             min_matched_planes=e.min_matched_planes,
             min_direction_support_m2=e.min_direction_support_m2,
+            weak_slide_range_m=e.weak_slide_range_m,
             hidden_against_support=e.hidden_against_support,
             max_conflict_area_m2=e.max_conflict_area_m2,
             conflict_vetoes_rivals=e.conflict_vetoes_rivals,

@@ -59,6 +59,11 @@ STAGES = ("prepare", "select", "transform", "verify", "decide", "refine")
 # refinement of every mode for the decision over refined poses, the twin probe before accepting (relaxed
 # selection, transforms and verification), and the round over the planes not fed that looks for a stronger pose.
 SUBSTAGES = ("decide.weights", "decide.density", "decide.tighten", "decide.probe", "decide.stronger")
+# A weakly constrained pose slid along its weakest direction (``weak_slide_range_m``): copies from half a metre on
+# (twice the suite's 0.25 m for a true pose), an eighth of a metre apart, must each match this many planes fewer.
+_SLIDE_MIN_M = 0.5
+_SLIDE_STEP_M = 0.125
+_SLIDE_MARGIN_PLANES = 2
 
 
 def too_few_planes_reason(submap_planes: int, map_planes: int, needed: int) -> str:
@@ -1015,9 +1020,18 @@ class Relocalizer:
             if trace is not None:
                 trace["direction_support"] = (support, against if p.occlusion and p.hidden_against_support else None)
             if support - against < p.min_direction_support_m2:
-                less = f", less {against:.2f} m^2 of planes the map hides from its cameras" if against else ""
-                return _rejected(f"pose weakly constrained: {support:.2f} m^2 of matched planes along its weakest "
-                                 f"direction{less} (needs {p.min_direction_support_m2})", counts, timings)
+                slid = self.slide_along_weakest(used, vs_ptr, vs_pts, T, v, cand_row)
+                if trace is not None:
+                    trace["weak_slide"] = slid
+                if slid is None or slid[1] > int(v.n_matched[0]) - _SLIDE_MARGIN_PLANES:
+                    less = f", less {against:.2f} m^2 of planes the map hides from its cameras" if against else ""
+                    peak = ("" if slid is None else f"; slid {slid[0]:+.2f} m along it, it matches {slid[1]} "
+                            f"planes against {int(v.n_matched[0])}")
+                    timings["refine"] = (time.perf_counter() - t0) * 1e3
+                    return _rejected(f"pose weakly constrained: {support:.2f} m^2 of matched planes along its weakest "
+                                     f"direction{less} (needs {p.min_direction_support_m2}){peak}", counts, timings)
+        # The winner's last checks (the support along its weakest direction, the slides) are part of the stage.
+        timings["refine"] = (time.perf_counter() - t0) * 1e3
         js = np.flatnonzero(match_row >= 0)
         matched = np.stack([order[js], match_row[js].astype(np.int64)], axis=1)
         counts["matched_surfaces"] = int(v.n_matched[0])
@@ -1042,6 +1056,37 @@ class Relocalizer:
             self.mark_hidden(used, vs_ptr, vs_pts, T[None, :3, :3], T[None, :3, 3], state)
             hidden = state[0] == 6
         return support_per_direction(used, v.match[0], p.min_counted_area_m2, hidden)
+
+    def slide_along_weakest(self, used: PlaneSet, vs_ptr, vs_pts, T: np.ndarray, v: Verification,
+                            cand_row: np.ndarray) -> tuple[float, int] | None:
+        """Pose ``T`` (4x4, verified alone in ``v`` at the final tolerances) slid along its weakest direction (that
+        of its matched planes of ``min_counted_area_m2``, as :func:`support_per_direction`) by every multiple of
+        ``_SLIDE_STEP_M`` from ``_SLIDE_MIN_M`` up to ``weak_slide_range_m`` each way, each copy verified at the final
+        tolerances: the slide whose copy passes with the most matched planes, and that count (-1 when none passes).
+        None when the test is off or no matched plane fixes a direction.
+
+        Planes that do not face along a corridor still end there: a wall at a door niche, the niche's door, a cabinet.
+        A pose that its normals leave free along the corridor is still pinned when those extents make it the only
+        peak: its copies half a metre along lose planes to the free space and to unmatched ends."""
+        p = self.params
+        if p.weak_slide_range_m <= 0:
+            return None
+        js = np.flatnonzero((v.match[0] >= 0) & (used.areas >= p.min_counted_area_m2))
+        if len(js) == 0:
+            return None
+        e = T[:3, :3] @ weakest_direction_support(used.normals[js], used.areas[js])[0]  # into the map frame
+        steps = np.arange(_SLIDE_MIN_M, p.weak_slide_range_m + 1e-9, _SLIDE_STEP_M)
+        if len(steps) == 0:
+            return None
+        dx = np.concatenate([-steps[::-1], steps])
+        H = len(dx)
+        R = np.ascontiguousarray(np.broadcast_to(T[:3, :3], (H, 3, 3)))
+        t = T[:3, 3][None, :] + dx[:, None] * e[None, :]
+        cand = np.ascontiguousarray(np.broadcast_to(cand_row, (H, cand_row.shape[1])))
+        w = self.verify(used, vs_ptr, vs_pts, R, t, cand, require_triplet=False, tight=True)
+        n = np.where(w.passed, w.n_matched, -1)
+        b = int(np.argmax(n))
+        return float(dx[b]), int(n[b])
 
     def _holds(self, v: Verification, min_matched: int, areas: np.ndarray, facets: np.ndarray | None) -> bool:
         """Whether the single pose verified in ``v`` passes, explains enough and matches ``min_matched`` planes
