@@ -258,11 +258,11 @@ def stronger_poses(judged, w: int, poses, params: MatchingParams) -> np.ndarray:
 
 
 def support_per_direction(planes: PlaneSet, match_row: np.ndarray, min_area_m2: float,
-                          against: np.ndarray | None = None) -> tuple[float, float]:
+                          against: np.ndarray | None = None) -> tuple[float, float, np.ndarray | None]:
     """Area (m^2) of the matched planes (each of at least ``min_area_m2``) that constrain the translation along its
-    weakest direction, and the area of the planes flagged in ``against`` (S,) bool (each of at least
+    weakest direction, the area of the planes flagged in ``against`` (S,) bool (each of at least
     ``min_area_m2``, matched or not) along that same direction: evidence against the pose there, which the caller
-    takes off the support.
+    takes off the support; and that direction (3,), in the planes' frame (None when no such plane is matched).
 
     The weakest direction and its support are those of :func:`reloc.planes.weakest_direction_support` over the
     matched planes. A corridor view is pinned along the corridor by a door jamb alone, a few tenths of a square
@@ -277,14 +277,14 @@ def support_per_direction(planes: PlaneSet, match_row: np.ndarray, min_area_m2: 
     large = planes.areas >= min_area_m2
     js = np.flatnonzero((match_row >= 0) & large)
     if len(js) == 0:
-        return 0.0, 0.0
+        return 0.0, 0.0, None
     n = planes.normals[js]
     a = planes.areas[js]
     e, support = weakest_direction_support(n, a)
     if against is None:
-        return support, 0.0
+        return support, 0.0, e
     ks = np.flatnonzero(against & large)
-    return support, float(planes.areas[ks][np.abs(planes.normals[ks] @ e) >= 0.5].sum())
+    return support, float(planes.areas[ks][np.abs(planes.normals[ks] @ e) >= 0.5].sum()), e
 
 
 class Relocalizer:
@@ -1016,11 +1016,11 @@ class Relocalizer:
                 return _rejected(f"contradicted by the map: a plane of {worst:.2f} m^2 lies off a map surface facing "
                                  f"the same way (at most {p.max_conflict_area_m2} m^2 may)", counts, timings)
         if p.scene_uniqueness and p.min_direction_support_m2 > 0:  # 0: the test is off, with what it takes off
-            support, against = self.direction_support(used, vs_ptr, vs_pts, T, v)
+            support, against, weak = self.direction_support(used, vs_ptr, vs_pts, T, v)
             if trace is not None:
                 trace["direction_support"] = (support, against if p.occlusion and p.hidden_against_support else None)
             if support - against < p.min_direction_support_m2:
-                slid = self.slide_along_weakest(used, vs_ptr, vs_pts, T, v, cand_row)
+                slid = None if weak is None else self.slide_along_weakest(used, vs_ptr, vs_pts, T, weak, cand_row)
                 if trace is not None:
                     trace["weak_slide"] = slid
                 if slid is None or slid[1] > int(v.n_matched[0]) - _SLIDE_MARGIN_PLANES:
@@ -1045,10 +1045,11 @@ class Relocalizer:
                            matched, explained, counts, timings, cov)
 
     def direction_support(self, used: PlaneSet, vs_ptr, vs_pts, T: np.ndarray,
-                          v: Verification) -> tuple[float, float]:
+                          v: Verification) -> tuple[float, float, np.ndarray | None]:
         """The support of pose ``T`` (4x4) along its weakest direction (:func:`support_per_direction`, from its
-        matches in ``v``, its verification at ``T`` alone) and the area taken off it: the planes the map hides from
-        the submap's cameras under ``T`` (with ``occlusion`` and ``hidden_against_support``, else 0)."""
+        matches in ``v``, its verification at ``T`` alone), the area taken off it: the planes the map hides from
+        the submap's cameras under ``T`` (with ``occlusion`` and ``hidden_against_support``, else 0), and that
+        direction in the submap's frame (None when no plane that counts is matched)."""
         p = self.params
         hidden = None
         if p.occlusion and p.hidden_against_support:
@@ -1057,27 +1058,21 @@ class Relocalizer:
             hidden = state[0] == 6
         return support_per_direction(used, v.match[0], p.min_counted_area_m2, hidden)
 
-    def slide_along_weakest(self, used: PlaneSet, vs_ptr, vs_pts, T: np.ndarray, v: Verification,
+    def slide_along_weakest(self, used: PlaneSet, vs_ptr, vs_pts, T: np.ndarray, weak: np.ndarray,
                             cand_row: np.ndarray) -> tuple[float, int] | None:
-        """Pose ``T`` (4x4, verified alone in ``v`` at the final tolerances) slid along its weakest direction (that
-        of its matched planes of ``min_counted_area_m2``, as :func:`support_per_direction`) by every multiple of
-        ``_SLIDE_STEP_M`` from ``_SLIDE_MIN_M`` up to ``weak_slide_range_m`` each way, each copy verified at the final
-        tolerances: the slide whose copy passes with the most matched planes, and that count (-1 when none passes).
-        None when the test is off or no matched plane fixes a direction.
+        """Pose ``T`` (4x4) slid along its weakest direction ``weak`` (3,, in the submap's frame, as
+        :meth:`direction_support` gives it) by every multiple of ``_SLIDE_STEP_M`` from ``_SLIDE_MIN_M`` up to
+        ``weak_slide_range_m`` each way, each copy verified at the final tolerances: the slide whose copy passes
+        with the most matched planes, and that count (-1 when none passes). None when the test is off (a range
+        under ``_SLIDE_MIN_M``).
 
         Planes that do not face along a corridor still end there: a wall at a door niche, the niche's door, a cabinet.
         A pose that its normals leave free along the corridor is still pinned when those extents make it the only
         peak: its copies half a metre along lose planes to the free space and to unmatched ends."""
-        p = self.params
-        if p.weak_slide_range_m <= 0:
-            return None
-        js = np.flatnonzero((v.match[0] >= 0) & (used.areas >= p.min_counted_area_m2))
-        if len(js) == 0:
-            return None
-        e = T[:3, :3] @ weakest_direction_support(used.normals[js], used.areas[js])[0]  # into the map frame
-        steps = np.arange(_SLIDE_MIN_M, p.weak_slide_range_m + 1e-9, _SLIDE_STEP_M)
+        steps = np.arange(_SLIDE_MIN_M, self.params.weak_slide_range_m + 1e-9, _SLIDE_STEP_M)
         if len(steps) == 0:
             return None
+        e = T[:3, :3] @ weak  # into the map frame
         dx = np.concatenate([-steps[::-1], steps])
         H = len(dx)
         R = np.ascontiguousarray(np.broadcast_to(T[:3, :3], (H, 3, 3)))
