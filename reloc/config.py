@@ -336,6 +336,11 @@ class MatchingConfig(_Section):
         50.0, gt=1, description="Reject triplets whose translation system is worse conditioned than this."
     )
     max_submap_planes: int = Field(30, ge=3, description="Largest planes of a submap considered at all.")
+    far_overlay_sigma_m: float = Field(
+        0.06, ge=0,
+        description="A submap plane where the sensor's depth noise (extraction's law) reaches this, lying over a "
+        "larger submap plane 3-25 deg off it, is left out: a fit across several surfaces (0 = never).",
+    )
     degenerate_min_angle_deg: float = Field(
         15.0, gt=0, le=60,
         description="Normals closer than this (or than 180 minus this) make a triplet degenerate (always checked).",

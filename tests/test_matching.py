@@ -14,8 +14,10 @@ from reloc.evaluation.synthetic import box, furnished_room, look_at, room, scene
 from reloc.matching import MatchingParams, Relocalizer, transform_from_plane_pairs
 from reloc.matching import _kernels as K
 from reloc.matching.index import build_index, horizontal_facing, with_dense_extents
+from reloc.matching.params import scaled_to_sensor
 from reloc.matching.selection import (
     candidate_triplets,
+    far_overlays,
     gap_bounds,
     order_submap_planes,
     sample_distances,
@@ -309,6 +311,52 @@ def test_incremental_order_starts_with_ground_and_separated_planes():
         if all(abs(n @ d) < math.cos(math.radians(30)) for d in dirs):
             dirs.append(n)
     assert len(dirs) >= 3
+
+
+def test_a_noisy_sensors_far_plane_over_a_larger_one_is_left_out_of_the_submap():
+    # In the camera's frame (z forward, y down): a wall 6 m ahead (6 x 3 m) and, over it, a plane turned 9 deg
+    # (1.2 x 1.2 m, a fit across the wall and a jamb), a door 6 cm in front of the wall (parallel: the fusion's to
+    # join or a niche), a plane turned 30 deg over the wall (beyond 25 deg), a side wall and the floor.
+    from dataclasses import replace
+
+    from reloc.evaluation.synthetic import Rect, planes_from_points
+
+    def turned(deg):
+        a = math.radians(deg)
+        return (math.sin(a), 0.0, -math.cos(a)), (math.cos(a), 0.0, math.sin(a))
+
+    n9, u9 = turned(9.0)
+    n30, u30 = turned(30.0)
+    rects = [
+        Rect((0.0, 0.0, 6.0), (0.0, 0.0, -1.0), (1.0, 0.0, 0.0), 3.0, 1.5),  # wall
+        Rect((1.5, 0.0, 6.0), n9, u9, 0.6, 0.6),  # turned 9 deg over it
+        Rect((-1.5, 0.5, 5.94), (0.0, 0.0, -1.0), (1.0, 0.0, 0.0), 0.45, 1.0),  # door
+        Rect((-1.0, -0.8, 6.0), n30, u30, 0.5, 0.5),  # turned 30 deg
+        Rect((-3.0, 0.0, 4.5), (1.0, 0.0, 0.0), (0.0, 0.0, 1.0), 1.5, 1.5),  # side wall
+        Rect((0.0, 1.5, 4.5), (0.0, -1.0, 0.0), (1.0, 0.0, 0.0), 3.0, 1.5),  # floor
+    ]
+    pieces = [r.grid(0.1) for r in rects]
+    normals = np.array([r.normal for r in rects])
+    offsets = -np.sum(normals * np.array([r.center for r in rects]), axis=1)
+    sub = planes_from_points(pieces, normals, offsets, spacing=0.1, frame="cam", gravity=np.array([0.0, 1.0, 0.0]))
+    overlay = [False, True, False, False, False, False]
+    # The stereo camera of the suite reaches 6 cm of noise at 4.98 m, a Kinect at 6.49 m, a ToF camera at 20 m.
+    stereo = scaled_to_sensor(MatchingParams(), "stereo", 0.0024187)
+    assert stereo.far_overlay_min_depth_m == pytest.approx(4.98, abs=0.01)
+    assert far_overlays(sub, stereo).tolist() == overlay
+    assert far_overlays(sub.subset(np.arange(6)[::-1]), stereo).tolist() == overlay[::-1]  # whatever the order
+    order = order_submap_planes(sub, stereo)
+    assert sorted(order.tolist()) == [0, 2, 3, 4, 5] and order[0] == 5  # the floor first
+    for params in (MatchingParams(), scaled_to_sensor(MatchingParams(), "kinect", 1.425e-3),
+                   scaled_to_sensor(MatchingParams(), "tof", 0.003), stereo.with_(far_overlay_sigma_m=0.0),
+                   scaled_to_sensor(MatchingParams(far_overlay_sigma_m=0.0), "stereo", 0.0024187)):
+        assert not far_overlays(sub, params).any()
+        assert sorted(order_submap_planes(sub, params).tolist()) == list(range(6))
+    # Seen from 3 m by an earlier camera of the window, the same plane is near enough to stand.
+    near = replace(sub, viewpoints=np.array([[0.0, 0.0, 3.0], [0.0, 0.0, 0.0]]))
+    assert not far_overlays(near, stereo).any()
+    # The larger plane must be there: without the wall the turned plane stands.
+    assert not far_overlays(sub.subset(np.array([1, 2, 3, 4, 5])), stereo).any()
 
 
 # --- relocalization ------------------------------------------------------------------------------------------------

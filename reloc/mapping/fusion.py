@@ -36,6 +36,7 @@ __all__ = [
     "PlaneAccumulator",
     "plane_fit_from_stats",
     "voxel_keys",
+    "fraction_touching",
     "patch_area",
 ]
 
@@ -81,6 +82,16 @@ _NEIGHBOUR_OFFSETS = (_DI << 42) + (_DJ << 21) + _DK
 def _neighbours(keys: np.ndarray) -> np.ndarray:
     """(K, 27) keys of the 27-neighbourhood of each key (keys are packed so that offsets add)."""
     return keys[:, None] + _NEIGHBOUR_OFFSETS[None, :]
+
+
+def fraction_touching(points: np.ndarray, other_keys: np.ndarray, spacing_m: float) -> float:
+    """Fraction of ``points`` (N, 3) in or next to (26 neighbours) a voxel of edge ``spacing_m`` whose key is in the
+    sorted array ``other_keys`` (:func:`voxel_keys` at that edge, made unique); 0 for no points."""
+    if len(points) == 0 or len(other_keys) == 0:
+        return 0.0
+    from reloc.mapping import _kernels as K
+
+    return K.count_touching(voxel_keys(points, spacing_m), other_keys, _NEIGHBOUR_OFFSETS) / len(points)
 
 
 def plane_fit_from_stats(

@@ -12,7 +12,8 @@ from dataclasses import dataclass, fields, replace
 from reloc._params import with_changes
 from reloc.extraction.params import noise_law_code
 
-__all__ = ["MatchingParams", "ABLATIONS", "ablation_params", "scaled_to_sensor", "sensor_sigma_m"]
+__all__ = ["MatchingParams", "ABLATIONS", "ablation_params", "scaled_to_sensor", "sensor_sigma_m",
+           "sensor_depth_at_sigma_m"]
 
 # Fields the stages divide by: zero is refused by name (a ZeroDivisionError deep in a query otherwise).
 _DIVISORS = ("kde_sigma_translation_m", "kde_sigma_rotation_rad", "extent_cell_m", "evidence_area_m2",
@@ -25,6 +26,11 @@ class MatchingParams:
     incremental: bool = True
     initial_planes: int = 5
     max_submap_planes: int = 30
+    # A submap plane where the sensor's noise reaches far_overlay_sigma_m (0: never), lying over a larger submap
+    # plane a few degrees off it, is left out (selection.far_overlays); far_overlay_min_depth_m is that distance,
+    # set by scaled_to_sensor (0: not scaled to a sensor, nothing left out).
+    far_overlay_sigma_m: float = 0.06
+    far_overlay_min_depth_m: float = 0.0
     # Triplet selection.
     structural_constraints: bool = True
     ground_tolerance_rad: float = math.radians(15.0)
@@ -192,6 +198,7 @@ class MatchingParams:
             incremental=m.incremental,
             initial_planes=m.initial_planes,
             max_submap_planes=m.max_submap_planes,
+            far_overlay_sigma_m=m.far_overlay_sigma_m,
             structural_constraints=m.structural_constraints,
             ground_tolerance_rad=r(m.ground_tolerance_deg),
             triplet_min_angle_rad=r(m.triplet_min_angle_deg),
@@ -301,6 +308,18 @@ def sensor_sigma_m(noise_model: str, noise_coeff: float, depth_m: float = 3.0) -
     raise ValueError(f"noise_model: expected 'kinect', 'tof', 'stereo' or 'constant', got {noise_model!r}")
 
 
+def sensor_depth_at_sigma_m(noise_model: str, noise_coeff: float, sigma_m: float) -> float:
+    """The depth (m) at which the sensor law of :func:`sensor_sigma_m` reaches ``sigma_m``; 0 when ``sigma_m`` is 0
+    or the law never reaches it (a constant law below it), 1 mm when a constant law is at or above it."""
+    sensor_sigma_m(noise_model, noise_coeff)  # names a law it does not know
+    power = noise_law_code(noise_model)
+    if sigma_m <= 0 or noise_coeff <= 0:
+        return 0.0
+    if power == 0:
+        return 1e-3 if noise_coeff >= sigma_m else 0.0
+    return (sigma_m / noise_coeff) ** (1.0 / power)
+
+
 # The decision over refined poses tells a look-alike apart by planes a few centimetres off (a door in its niche).
 # Its offsets must stay a few noise sigmas wide: at 3 m a Kinect-class sensor (1.3 cm) keeps the defaults (3 and
 # 5 cm), a stereo camera of 2.2 cm gets 5 and 8.4 cm (at 3 and 5 cm its maps' biased wall fragments decided between
@@ -370,6 +389,7 @@ def scaled_to_sensor(params: MatchingParams, noise_model: str, noise_coeff: floa
                                          else params.well_matched_explained_fraction),
         rival_unknown_weight=(min(params.rival_unknown_weight, params.noisy_rival_unknown_weight) if noisy
                               else params.rival_unknown_weight),
+        far_overlay_min_depth_m=sensor_depth_at_sigma_m(noise_model, noise_coeff, params.far_overlay_sigma_m),
     )
 
 

@@ -44,6 +44,7 @@ from reloc.matching.selection import (
     order_submap_planes,
     sample_distances,
     submap_triplets,
+    view_distances,
 )
 from reloc.matching.transform import rotation_from_normal_pairs, translation_from_offsets
 from reloc.planes import weakest_direction_support
@@ -421,9 +422,7 @@ class Relocalizer:
         scale = np.ones((S, 2))
         if not p.near_decision_offsets or p.noise_depth_power <= 0 or S == 0:
             return scale
-        views = used.viewpoints if used.viewpoints is not None else np.zeros((1, 3))
-        d = np.min(np.linalg.norm(used.centroids[:, None, :] - views[None, :, :], axis=2), axis=1)
-        f = (np.minimum(d, 3.0) / 3.0) ** p.noise_depth_power
+        f = (np.minimum(view_distances(used), 3.0) / 3.0) ** p.noise_depth_power
         scale[:, 0] = np.maximum(f, min(1.0, p.decision_offset_floor_m / max_offset))
         scale[:, 1] = np.maximum(f, min(1.0, p.decision_conflict_floor_m / conflict))
         scale[used.areas < p.near_decision_min_area_m2] = 1.0

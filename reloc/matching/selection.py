@@ -1,7 +1,8 @@
 """Triplet selection: which submap planes come first, which submap triplets are tried, and their map candidates.
 
 - :func:`order_submap_planes`: the incremental input order, representative planes first (the ground, then large
-  planes well separated in angle from those already chosen), then the rest by area.
+  planes well separated in angle from those already chosen), then the rest by area; a noisy sensor's far planes
+  laid over larger ones (:func:`far_overlays`) are left out.
 - :func:`submap_triplets`: triplets of submap planes inside the orthogonality window with the ground constraint
   (structural mode), or any non-degenerate triplet (the paper's VR-NG).
 - :func:`candidate_triplets`: for each submap triplet, the map triplets agreeing with it (pairwise angles within the
@@ -21,11 +22,69 @@ from reloc.matching.index import MapIndex, horizontal_facing
 from reloc.matching.params import MatchingParams
 from reloc.planeset import PlaneSet
 
-__all__ = ["order_submap_planes", "submap_triplets", "gap_bounds", "sample_distances", "candidate_triplets"]
+__all__ = ["order_submap_planes", "far_overlays", "view_distances", "submap_triplets", "gap_bounds", "sample_distances",
+           "candidate_triplets"]
+
+
+# A far plane over a larger one: normals 3-25 deg apart (closer ones are the fusion's to join, or a door in its
+# niche), its samples at a median of 0.25 m from the larger plane, and half of them in or next to a 0.2 m cell
+# holding a sample of it.
+OVERLAY_MIN_ANGLE_RAD = math.radians(3.0)
+OVERLAY_MAX_ANGLE_RAD = math.radians(25.0)
+OVERLAY_MAX_OFFSET_M = 0.25
+OVERLAY_CELL_M = 0.2
+OVERLAY_MIN_FRACTION = 0.5
+
+
+def view_distances(planes: PlaneSet) -> np.ndarray:
+    """(N,) distance of each plane's centroid from the nearest camera of its window (``planes.viewpoints``; the
+    frame's origin when there are none)."""
+    views = planes.viewpoints if planes.viewpoints is not None else np.zeros((1, 3))
+    return np.min(np.linalg.norm(planes.centroids[:, None, :] - views[None, :, :], axis=2), axis=1)
+
+
+def far_overlays(planes: PlaneSet, params: MatchingParams) -> np.ndarray:
+    """(N,) bool: the planes a submap is better without. A plane at least ``params.far_overlay_min_depth_m`` from
+    every camera of its window (where the sensor's noise reaches ``far_overlay_sigma_m``; 0 = none) that lies over a
+    larger plane of the submap, turned 3-25 deg from it (``OVERLAY_*``). At that noise, a third of a 25 cm voxel,
+    the voxels' normals are barely defined and the growth joins surfaces: a stereo camera's far wall came out beside
+    a plane of 4.5 m^2 made of the wall, a side wall and two door jambs, 8.7 deg off (docs/BENCHMARKS.md, "Stereo's
+    lost views, traced"). Such a plane is in conflict with the map at the true pose, or unknown to it where a rival
+    is credited for it; the larger plane it lies over holds the surface's evidence. Each plane is judged against
+    every larger plane of the submap, left out or not, so the answer does not depend on the planes' order."""
+    n = len(planes)
+    out = np.zeros(n, dtype=bool)
+    if n < 2 or params.far_overlay_sigma_m <= 0 or params.far_overlay_min_depth_m <= 0:
+        return out
+    far = np.flatnonzero(view_distances(planes) >= params.far_overlay_min_depth_m)
+    if len(far) == 0:
+        return out
+    from reloc.mapping.fusion import fraction_touching, voxel_keys
+
+    cos_lo, cos_hi = math.cos(OVERLAY_MAX_ANGLE_RAD), math.cos(OVERLAY_MIN_ANGLE_RAD)
+    areas = planes.areas
+    keys: dict[int, np.ndarray] = {}
+    for j in far:
+        pts_j = planes.samples_of(int(j))
+        if len(pts_j) == 0:
+            continue
+        for i in np.flatnonzero(areas > areas[j]):
+            c = float(planes.normals[i] @ planes.normals[j])
+            if not cos_lo <= c <= cos_hi:
+                continue
+            if np.median(np.abs(pts_j @ planes.normals[i] + planes.offsets[i])) > OVERLAY_MAX_OFFSET_M:
+                continue
+            if i not in keys:
+                keys[i] = np.unique(voxel_keys(planes.samples_of(int(i)), OVERLAY_CELL_M))
+            if fraction_touching(pts_j, keys[i], OVERLAY_CELL_M) >= OVERLAY_MIN_FRACTION:
+                out[j] = True
+                break
+    return out
 
 
 def order_submap_planes(planes: PlaneSet, params: MatchingParams) -> np.ndarray:
-    """Indices of ``planes`` in incremental input order, at most ``params.max_submap_planes`` of them.
+    """Indices of ``planes`` in incremental input order, at most ``params.max_submap_planes`` of them, without the
+    far planes laid over larger ones (:func:`far_overlays`).
 
     The ground (the largest plane facing up, else the largest horizontal plane) first; then, while fewer than
     ``initial_planes`` are chosen, the largest plane whose normal is at least 30 degrees from every chosen one (or,
@@ -38,9 +97,11 @@ def order_submap_planes(planes: PlaneSet, params: MatchingParams) -> np.ndarray:
     areas = planes.areas
     # Deterministic tie-break independent of input order: area, then the centroid coordinates.
     by_area = np.lexsort((planes.centroids[:, 2], planes.centroids[:, 1], planes.centroids[:, 0], -areas))
+    by_area = by_area[~far_overlays(planes, params)[by_area]]
+    n = len(by_area)
     chosen: list[int] = []
     facing = horizontal_facing(planes, params.ground_tolerance_rad)
-    if (facing != 0).any():
+    if (facing[by_area] != 0).any():
         first = next((i for i in by_area if facing[i] == 1), None)
         chosen.append(int(first if first is not None else next(i for i in by_area if facing[i] != 0)))
     sep = math.cos(math.radians(30.0))
