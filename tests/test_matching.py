@@ -14,7 +14,7 @@ from reloc.evaluation.synthetic import box, furnished_room, look_at, room, scene
 from reloc.matching import MatchingParams, Relocalizer, transform_from_plane_pairs
 from reloc.matching import _kernels as K
 from reloc.matching.index import build_index, horizontal_facing, with_dense_extents
-from reloc.matching.params import scaled_to_sensor
+from reloc.matching.params import scaled_to_sensor, sensor_depth_at_sigma_m
 from reloc.matching.selection import (
     candidate_triplets,
     far_overlays,
@@ -343,6 +343,11 @@ def test_a_noisy_sensors_far_plane_over_a_larger_one_is_left_out_of_the_submap()
     # The stereo camera of the suite reaches 6 cm of noise at 4.98 m, a Kinect at 6.49 m, a ToF camera at 20 m.
     stereo = scaled_to_sensor(MatchingParams(), "stereo", 0.0024187)
     assert stereo.far_overlay_min_depth_m == pytest.approx(4.98, abs=0.01)
+    assert sensor_depth_at_sigma_m("tof", 0.003, 0.06) == pytest.approx(20.0)
+    assert sensor_depth_at_sigma_m("constant", 0.05, 0.06) == 0.0  # never reached: off
+    assert 0 < sensor_depth_at_sigma_m("constant", 0.07, 0.06) < 0.01  # everywhere
+    with pytest.raises(ValueError, match="noise_model"):
+        sensor_depth_at_sigma_m("sonar", 0.01, 0.06)
     assert far_overlays(sub, stereo).tolist() == overlay
     assert far_overlays(sub.subset(np.arange(6)[::-1]), stereo).tolist() == overlay[::-1]  # whatever the order
     order = order_submap_planes(sub, stereo)

@@ -311,8 +311,7 @@ def sensor_sigma_m(noise_model: str, noise_coeff: float, depth_m: float = 3.0) -
 def sensor_depth_at_sigma_m(noise_model: str, noise_coeff: float, sigma_m: float) -> float:
     """The depth (m) at which the sensor law of :func:`sensor_sigma_m` reaches ``sigma_m``; 0 when ``sigma_m`` is 0
     or the law never reaches it (a constant law below it), 1 mm when a constant law is at or above it."""
-    sensor_sigma_m(noise_model, noise_coeff)  # names a law it does not know
-    power = noise_law_code(noise_model)
+    power = noise_law_code(noise_model)  # ValueError naming a law it does not know
     if sigma_m <= 0 or noise_coeff <= 0:
         return 0.0
     if power == 0:
