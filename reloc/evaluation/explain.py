@@ -78,7 +78,8 @@ def explain_result(relocalizer: Relocalizer, submap: PlaneSet, res, trace: dict,
     if res.relocalized and "direction_support" in trace:
         # The last test the answer passed, with its margin: how close it came to being turned away.
         support, against = trace["direction_support"]
-        less = f", less {against:.2f} m^2 the map hides from its cameras" if against is not None else ""
+        less = (f", less {against:.2f} m^2 the map hides from its cameras or has in conflict" if against is not None
+                else "")
         out.append(f"  along its weakest direction {support:.2f} m^2 of matched planes{less} "
                    f"(needs {relocalizer.params.min_direction_support_m2})")
     c = res.counts

@@ -61,6 +61,7 @@ class MatchingParams:
     min_direction_support_m2: float = 0.4
     weak_slide_range_m: float = 8.0
     hidden_against_support: bool = True
+    conflicts_against_support: bool = True
     max_conflict_area_m2: float = 1.0
     conflict_vetoes_rivals: bool = True
     min_uncontradicted_planes: int = 5
@@ -113,7 +114,7 @@ class MatchingParams:
     hidden_rival_credit: bool = True
     sealed_rival_credit: bool = False
     small_rival_credit: bool = True
-    near_decision_offsets: bool = False
+    near_decision_offsets: bool = True
     near_decision_min_area_m2: float = 0.5
     # Set by scaled_to_sensor for near_decision_offsets: the exponent k of the sensor's law sigma = c z^k (0: not
     # scaled to a sensor) and the decision offsets before they were raised to follow its noise at 3 m.
@@ -227,6 +228,7 @@ class MatchingParams:
             min_direction_support_m2=e.min_direction_support_m2,
             weak_slide_range_m=e.weak_slide_range_m,
             hidden_against_support=e.hidden_against_support,
+            conflicts_against_support=e.conflicts_against_support,
             max_conflict_area_m2=e.max_conflict_area_m2,
             conflict_vetoes_rivals=e.conflict_vetoes_rivals,
             min_uncontradicted_planes=e.min_uncontradicted_planes,

@@ -271,9 +271,10 @@ def support_per_direction(planes: PlaneSet, match_row: np.ndarray, min_area_m2: 
     the support less the area against with ``min_direction_support_m2`` (0.4 m^2: at 0.5 the relocalization suite
     rejected corridor views pinned by 0.41-0.48 m^2; accepted, the two of them with ToF noise came out 2 and 14 mm
     off). Against, in :meth:`Relocalizer.direction_support`: the planes the map hides from the submap's cameras
-    under the pose (``hidden_against_support``). A meeting-room view placed in the corridor scene was pinned along
-    the corridor by a cabinet face of 0.70 m^2, while the wall of the room it saw through a doorway, 0.59 m^2 and
-    also across the corridor, lay behind the corridor's wall.
+    under the pose (``hidden_against_support``), and those in conflict with the map (``conflicts_against_support``).
+    A meeting-room view placed in the corridor scene was pinned along the corridor by a cabinet face of 0.70 m^2,
+    while the wall of the room it saw through a doorway, 0.59 m^2 and also across the corridor, lay behind the
+    corridor's wall.
     """
     large = planes.areas >= min_area_m2
     js = np.flatnonzero((match_row >= 0) & large)
@@ -1017,13 +1018,15 @@ class Relocalizer:
         if p.scene_uniqueness and p.min_direction_support_m2 > 0:  # 0: the test is off, with what it takes off
             support, against, weak = self.direction_support(used, vs_ptr, vs_pts, T, v)
             if trace is not None:
-                trace["direction_support"] = (support, against if p.occlusion and p.hidden_against_support else None)
+                judged = (p.occlusion and p.hidden_against_support) or p.conflicts_against_support
+                trace["direction_support"] = (support, against if judged else None)
             if support - against < p.min_direction_support_m2:
                 slid = None if weak is None else self.slide_along_weakest(used, vs_ptr, vs_pts, T, weak, cand_row)
                 if trace is not None:
                     trace["weak_slide"] = slid
                 if slid is None or slid[1] > int(v.n_matched[0]) - _SLIDE_MARGIN_PLANES:
-                    less = f", less {against:.2f} m^2 of planes the map hides from its cameras" if against else ""
+                    less = (f", less {against:.2f} m^2 of planes the map hides from its cameras or in conflict with it"
+                            if against else "")
                     peak = ("" if slid is None else f"; slid {slid[0]:+.2f} m along it, it matches {slid[1]} "
                             f"planes against {int(v.n_matched[0])}")
                     timings["refine"] = (time.perf_counter() - t0) * 1e3
@@ -1047,15 +1050,21 @@ class Relocalizer:
                           v: Verification) -> tuple[float, float, np.ndarray | None]:
         """The support of pose ``T`` (4x4) along its weakest direction (:func:`support_per_direction`, from its
         matches in ``v``, its verification at ``T`` alone), the area taken off it: the planes the map hides from
-        the submap's cameras under ``T`` (with ``occlusion`` and ``hidden_against_support``, else 0), and that
-        direction in the submap's frame (None when no plane that counts is matched)."""
+        the submap's cameras under ``T`` (with ``occlusion`` and ``hidden_against_support``) and those in conflict
+        with the map in ``v`` (with ``conflicts_against_support``), and that direction in the submap's frame (None
+        when no plane that counts is matched)."""
         p = self.params
-        hidden = None
+        against = None
         if p.occlusion and p.hidden_against_support:
             state = v.state[:1].copy()
             self.mark_hidden(used, vs_ptr, vs_pts, T[None, :3, :3], T[None, :3, 3], state)
-            hidden = state[0] == 6
-        return support_per_direction(used, v.match[0], p.min_counted_area_m2, hidden)
+            against = state[0] == 6
+        if p.conflicts_against_support:
+            # A stereo corridor view was placed 0.30 m along the corridor by a face of 2.3 m^2 while a wall of 6.25
+            # m^2 facing the same way lay off its map wall: what pins the pose along that direction disagrees.
+            conflict = v.state[0] == 2
+            against = conflict if against is None else against | conflict
+        return support_per_direction(used, v.match[0], p.min_counted_area_m2, against)
 
     def slide_along_weakest(self, used: PlaneSet, vs_ptr, vs_pts, T: np.ndarray, weak: np.ndarray,
                             cand_row: np.ndarray) -> tuple[float, int] | None:
