@@ -1407,7 +1407,7 @@ def test_a_weakly_constrained_pose_stands_when_sliding_it_along_its_weak_directi
     side and top with its front. A thin panel of two small faces loses one plane only; a second cabinet 3 m along
     gives a copy that matches as many planes, which ``confirm`` (no rivals) rejects by the slide and ``locate`` as
     ambiguous. Off, the cabinet and the panel are rejected as weakly constrained, and so are the two cabinets by
-    ``confirm``."""
+    ``confirm``. ``explain_query`` says how the cabinet's pose stood."""
     from reloc.evaluation.synthetic import Rect
 
     corridor = room(30.0, 2.0, 2.7)
@@ -1436,6 +1436,14 @@ def test_a_weakly_constrained_pose_stands_when_sliding_it_along_its_weak_directi
         assert got["two cabinets", 8.0, "locate"].startswith("ambiguous: ")
     assert got["two cabinets", 0.0, "confirm"] == weak("0.32")
     assert got["two cabinets", 8.0, "confirm"].endswith("; slid -3.00 m along it, it matches 6 planes against 6")
+    # Explained, the answer says it stood short of the support, as the only peak along that direction.
+    from reloc.evaluation.explain import explain_query
+
+    reloc = Relocalizer(scene_planes(corridor + cabinet), MatchingParams(weak_slide_range_m=8.0))
+    assert explain_query(reloc, view_planes(corridor + cabinet, T), T).splitlines()[2] == (
+        "  along its weakest direction 0.32 m^2 of matched planes, less 0.00 m^2 the map hides from its cameras or "
+        "has in conflict (needs 0.4); short of it, the only peak along it: the best copy slid -8.00 m matches 4 "
+        "planes against 6")
 
 
 def test_hidden_planes_count_against_a_pose_as_conflicts_do():

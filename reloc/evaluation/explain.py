@@ -80,8 +80,14 @@ def explain_result(relocalizer: Relocalizer, submap: PlaneSet, res, trace: dict,
         support, against = trace["direction_support"]
         less = (f", less {against:.2f} m^2 the map hides from its cameras or has in conflict" if against is not None
                 else "")
-        out.append(f"  along its weakest direction {support:.2f} m^2 of matched planes{less} "
-                   f"(needs {relocalizer.params.min_direction_support_m2})")
+        line = (f"  along its weakest direction {support:.2f} m^2 of matched planes{less} "
+                f"(needs {relocalizer.params.min_direction_support_m2})")
+        if trace.get("weak_slide") is not None:
+            # Short of that support, it stood as the only peak along the direction (``weak_slide_range_m``).
+            shift, n = trace["weak_slide"]
+            line += (f"; short of it, the only peak along it: the best copy slid {shift:+.2f} m matches {n} planes "
+                     f"against {res.counts.get('matched_surfaces', 0)}")
+        out.append(line)
     c = res.counts
     out.append(f"  {c.get('planes_used', 0)} of {c.get('submap_planes', 0)} submap planes used, "
                f"{c.get('candidates', 0)} candidate triplets, {c.get('verified', 0)} transforms verified, "
