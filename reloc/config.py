@@ -637,7 +637,7 @@ class EvaluationConfig(_Section):
         "decision_max_offset_m and decision_conflict_m: a stereo plane seen from 2 m is measured to 1 cm, and a "
         "rival that puts it 6 cm off a map surface facing its way contradicts the map there. On by default since "
         "conflicts_against_support: over nine stereo suites the two answer 23 views more and add no false positive "
-        "(docs/BENCHMARKS.md, 'A noisy sensor's near planes judged at their own distance').",
+        "(docs/BENCHMARKS.md, 'Planes in conflict against the weakest direction's support').",
     )
     near_decision_min_area_m2: float = Field(
         0.5, ge=0.0,
