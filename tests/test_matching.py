@@ -1089,7 +1089,8 @@ def test_a_sealed_map_surface_hides_only_where_the_map_never_saw_past_it():
     pm = PlaneMap(planes, np.ones(len(planes), np.int64), free_keys=np.unique(K.cell_keys(inside, voxel)),
                   free_voxel_m=voxel)
     for sealed in (False, True):
-        reloc = Relocalizer(pm, replace(MatchingParams(), occlusion=False, sealed_rival_credit=sealed))
+        reloc = Relocalizer(pm, replace(MatchingParams(), occlusion=False, sealed_rival_credit=sealed,
+                                        footprint_rival_credit=False))
         tight, used, (k,) = _tightened_at(reloc, view_planes(corridor + [wall, beyond], T), [T])
         j = int(np.argmin(np.linalg.norm(used.centroids @ T[:3, :3].T + T[:3, 3] - np.array(beyond.center), axis=1)))
         assert len(tight) == 1 and tight.state[k, j] == 1
@@ -1097,6 +1098,60 @@ def test_a_sealed_map_surface_hides_only_where_the_map_never_saw_past_it():
             assert float(tight.hidden_frac[k, j]) == pytest.approx(got["outer wall", True][1], abs=0.01)
         else:
             assert tight.hidden_frac is None
+
+
+def test_a_rival_earns_no_credit_for_a_plane_outside_the_maps_footprint():
+    """A map's footprint is what its samples and known free space cover seen from above, grown by
+    ``footprint_margin_m``. The corridor of the sealed test above, 6 x 2 m: a point 0.9 m beyond its y = 0 wall is in
+    the footprint, one 1.3 m beyond is not. The side wall of the room beyond (y from -2.0 to -1.0, 1-2 m past the
+    wall) lies outside it but for the cells along its near edge, so under ``footprint_rival_credit`` a rival's credit
+    for it shrinks by that share (the hidden share of the decision over refined poses), with the occlusion test off
+    (a noisy sensor) and on (the larger of the two shares); a map that saw the room beyond gives it none, and
+    without the switch there is no share at all."""
+    from dataclasses import replace
+
+    from reloc.evaluation.synthetic import Rect
+    from reloc.mapping import PlaneMap
+    from reloc.matching.footprint import MapFootprint, free_voxel_centres
+
+    corridor = [r for r in room(6.0, 2.0, 2.7) if r.normal[1] < 0.5]
+    wall = Rect((3.0, 0.0, 1.35), (0, 1, 0), (1, 0, 0), 3.0, 1.35)
+    beyond = Rect((2.3, -1.5, 1.0), (1, 0, 0), (0, 1, 0), 0.5, 0.8)
+    T = look_at((4.0, 1.5, 1.3), (1.0, -0.5, 1.0))
+    voxel = 0.15
+    g = np.stack(np.meshgrid(np.arange(voxel / 2, 6.0, voxel), np.arange(-2.0, 2.0, voxel),
+                             np.arange(0.3, 2.4, voxel), indexing="ij"), axis=-1).reshape(-1, 3)
+    inside = g[(g[:, 1] > 0.3) & (g[:, 1] < 1.7)]
+    behind = g[(g[:, 1] < -0.3) & (g[:, 0] > 2.6)]
+    planes = scene_planes(corridor + [wall])
+    keys = np.unique(K.cell_keys(inside, voxel))
+    centres = free_voxel_centres(keys, voxel)
+    assert np.abs(centres[:, 1] - 1.0).max() < 0.8 and centres[:, 0].min() < 0.5  # the keys decode to the corridor
+    fp = MapFootprint.of_map(planes.sample_points, keys, voxel, planes.gravity, margin_m=1.0)
+    probe = np.array([[3.0, -0.9, 1.0], [3.0, -1.3, 1.0], [3.0, 1.0, 1.0], [7.3, 1.0, 1.0], [3.0, 3.4, 1.0]])
+    assert fp.contains(probe).tolist() == [True, False, True, False, False]
+    # One plane of four samples, y from 0.5 to -2.5 (two outside); moved 5 m along y, three are (y 3.5-5.5).
+    ptr = np.array([0, 4])
+    pts = np.array([[3.0, 0.5, 1.0], [3.0, -0.5, 1.0], [3.0, -1.5, 1.0], [3.0, -2.5, 1.0]])
+    R = np.stack([np.eye(3), np.eye(3)])
+    share = fp.outside_share(ptr, pts, R, np.array([[0.0, 0.0, 0.0], [0.0, 5.0, 0.0]]))
+    assert share[:, 0].tolist() == [0.5, 0.75]
+    with pytest.raises(ValueError, match="margin_m"):
+        MapFootprint(pts, planes.gravity, margin_m=-1.0)
+    got = {}
+    for name, free, occlusion, on in (("outer wall", inside, False, True), ("outer wall, off", inside, False, False),
+                                      ("outer wall, occlusion", inside, True, True),
+                                      ("seen past", np.concatenate([inside, behind]), False, True)):
+        pm = PlaneMap(planes, np.ones(len(planes), np.int64), free_keys=np.unique(K.cell_keys(free, voxel)),
+                      free_voxel_m=voxel)
+        reloc = Relocalizer(pm, replace(MatchingParams(), occlusion=occlusion, footprint_rival_credit=on))
+        tight, used, (k,) = _tightened_at(reloc, view_planes(corridor + [wall, beyond], T), [T])
+        j = int(np.argmin(np.linalg.norm(used.centroids @ T[:3, :3].T + T[:3, 3] - np.array(beyond.center), axis=1)))
+        got[name] = None if tight.hidden_frac is None else round(float(tight.hidden_frac[k, j]), 2)
+    assert got["outer wall"] >= 0.7
+    assert got["outer wall, off"] is None
+    assert got["outer wall, occlusion"] >= got["outer wall"]
+    assert got["seen past"] == 0.0
 
 
 def test_a_small_plane_where_the_map_knows_nothing_earns_a_rival_credit():

@@ -113,6 +113,8 @@ class MatchingParams:
     noisy_rival_unknown_weight: float = 0.5
     hidden_rival_credit: bool = True
     sealed_rival_credit: bool = False
+    footprint_rival_credit: bool = True
+    footprint_margin_m: float = 1.0
     small_rival_credit: bool = True
     near_decision_offsets: bool = True
     near_decision_min_area_m2: float = 0.5
@@ -279,6 +281,8 @@ class MatchingParams:
             noisy_rival_unknown_weight=e.noisy_rival_unknown_weight,
             hidden_rival_credit=e.hidden_rival_credit,
             sealed_rival_credit=e.sealed_rival_credit,
+            footprint_rival_credit=e.footprint_rival_credit,
+            footprint_margin_m=e.footprint_margin_m,
             small_rival_credit=e.small_rival_credit,
             near_decision_offsets=e.near_decision_offsets,
             near_decision_min_area_m2=e.near_decision_min_area_m2,

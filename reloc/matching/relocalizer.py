@@ -25,6 +25,7 @@ import numpy as np
 
 from reloc.matching import _kernels as K
 from reloc.matching.covariance import pose_covariance
+from reloc.matching.footprint import MapFootprint
 from reloc.matching.index import SURFACE_CELL_M, MapIndex, build_index, horizontal_facing, with_dense_extents
 from reloc.matching.params import MatchingParams
 from reloc.matching.scoring import (
@@ -309,6 +310,18 @@ class Relocalizer:
                                            free_voxel_m=getattr(plane_map, "free_voxel_m", 0.0))
         if brute_force:
             self.index = with_dense_extents(self.index, planes)
+        self._footprint: MapFootprint | None = None
+
+    @property
+    def footprint(self) -> MapFootprint | None:
+        """The map's footprint (:class:`~reloc.matching.footprint.MapFootprint`: its samples and known free space seen
+        from above, grown by ``footprint_margin_m``), built on first use; None for a map without gravity or samples
+        (no "above")."""
+        if self._footprint is None and self.planes.gravity is not None and len(self.planes.sample_points):
+            ix = self.index
+            self._footprint = MapFootprint.of_map(self.planes.sample_points, ix.free_keys, ix.free_voxel_m,
+                                                  self.planes.gravity, margin_m=self.params.footprint_margin_m)
+        return self._footprint
 
     @property
     def _map_knows_free_space(self) -> bool:
@@ -634,6 +647,13 @@ class Relocalizer:
             # the share of it behind a map surface the map never saw past (the outside of the building's outer
             # wall). The states are left alone: only the rivals' credit changes.
             hidden = self.mark_hidden(used, vs_ptr, vs_pts, R, t, v.state.copy(), exact=True, sealed=True)[v.passed]
+        if (p.footprint_rival_credit and p.hidden_rival_credit and p.optimistic_rivals and self._map_knows_free_space
+                and np.any(v.passed) and self.footprint is not None):
+            # Whatever the sensor: a rival earns no credit for a plane it puts outside the building, beyond every
+            # surface and empty space the mapping runs saw (a noisy sensor's map closes the doorways, so the
+            # occlusion test is off for it and nothing else says so).
+            outside = self.footprint.outside_share(vs_ptr, vs_pts, R[v.passed], t[v.passed])
+            hidden = outside if hidden is None else np.maximum(hidden, outside)
         vetoed = np.zeros(len(leaders), dtype=bool)
         if p.conflict_vetoes_rivals and p.max_conflict_area_m2 > 0:
             # A mode with a plane of max_conflict_area_m2 or more in conflict with the map (or hidden behind a map
