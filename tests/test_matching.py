@@ -1154,6 +1154,45 @@ def test_a_rival_earns_no_credit_for_a_plane_outside_the_maps_footprint():
     assert got["seen past"] == 0.0
 
 
+def test_explain_names_the_planes_a_pose_puts_outside_the_maps_footprint():
+    """``--explain`` says which planes unknown to the map a pose puts outside the map's footprint, and what share of
+    their samples: a living-room view that also sees a 1.2 x 1.2 m panel 1.6 m beyond the room's x = 0 wall (as a
+    noisy sensor's map, whose closed doorways turn the occlusion test off, would leave it unknown). Relocalized at the
+    true pose, the panel is the one plane named, all of its samples outside; without the switch no line."""
+    from dataclasses import replace
+
+    from reloc.evaluation.explain import explain_query
+    from reloc.evaluation.synthetic import Rect
+    from reloc.mapping import PlaneMap
+
+    rects = furnished_room("living")
+    beyond = Rect((-1.6, 2.5, 1.2), (1, 0, 0), (0, 1, 0), 0.6, 0.6)
+    T = look_at((2.5, 4.2, 1.5), (0.0, 1.0, 1.0))
+    voxel = 0.25
+    g = np.stack(np.meshgrid(*(np.arange(voxel / 2, e, voxel) for e in (6.0, 5.0, 2.6)), indexing="ij"),
+                 axis=-1).reshape(-1, 3)
+    g = g[np.all((g > 0.3) & (g < np.array([5.7, 4.7, 2.3])), axis=1)]
+    planes = scene_planes(rects)
+    pm = PlaneMap(planes, np.ones(len(planes), np.int64), free_keys=np.unique(K.cell_keys(g, voxel)),
+                  free_voxel_m=voxel)
+    sub = view_planes(rects + [beyond], T, point_noise_m=0.005, rng=np.random.default_rng(5))
+    for on in (True, False):
+        reloc = Relocalizer(pm, replace(MatchingParams(), occlusion=False, footprint_rival_credit=on))
+        text = explain_query(reloc, sub, T)
+        assert text.startswith("result: relocalized"), text.splitlines()[0]
+        lines = [ln for ln in text.splitlines() if ln.startswith("planes unknown to the map that a pose puts")]
+        if not on:
+            assert lines == []
+            continue
+        assert len(lines) == 1
+        m = re.search(r"shrinks by share / 0.5\): pose 0: (\d+) \(([0-9.]+)\)$", lines[0])
+        assert m, lines[0]
+        j = int(m.group(1))
+        used = reloc.prepare(sub)[0]
+        centre = T[:3, :3] @ used.centroids[j] + T[:3, 3]
+        assert np.linalg.norm(centre - np.array(beyond.center)) < 0.1 and float(m.group(2)) == 1.0
+
+
 def test_a_small_plane_where_the_map_knows_nothing_earns_a_rival_credit():
     """A panel of 0.25 m^2 (under ``min_counted_area_m2``) stands in a 6 x 4 m room that the map holds without it:
     the small face of furniture that a mapping run saw in one twin room and not in the other. Weighed as a mode of
