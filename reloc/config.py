@@ -730,7 +730,8 @@ class EvaluationConfig(_Section):
         description="How far beyond the map's samples and free space the footprint of footprint_rival_credit "
         "reaches (m): a noisy sensor's far samples scatter by decimetres (stereo at 7 m: 12 cm), and a pose a few "
         "tenths of a metre off pushes a wall's edge past the map's (0.5 m: one false positive more on the held-out "
-        "replicate, a rival half a turn off whose walls stuck out a quarter of their samples).",
+        "replicate, once a rival turned 45 deg, whose walls stuck out by a quarter to a half of their samples, lost "
+        "its credit).",
     )
     small_rival_credit: bool = Field(
         True,

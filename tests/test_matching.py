@@ -1042,17 +1042,11 @@ def test_a_plane_behind_a_map_wall_is_hidden_but_not_one_seen_through_a_doorway(
     assert states["solid, seen from beyond"] == (1, 0.0)
 
 
-def test_a_sealed_map_surface_hides_only_where_the_map_never_saw_past_it():
-    """A noisy sensor's map draws surface across doorways the cameras saw through, so for it a map surface hides a
-    plane only where the map knows no free space between the two (``sealed``). The view of the doorway test above, a
-    side wall 1-2 m behind the corridor's solid y = 0 wall: with free space known only in the corridor (the outside
-    of a building's outer wall), the wall hides it as without ``sealed``; with free space known beyond the wall too,
-    0.3 m short of the surfaces there (a room the mapping run saw, through a doorway its map closed), it hides
-    nothing."""
-    from dataclasses import replace
-
+def _corridor_and_beyond():
+    """The corridor of the occlusion tests (6 x 2 m, all but its y = 0 wall) and that wall, the side wall of a room
+    1-2 m beyond it (facing +x), a view of both, free space inside the corridor and in the room beyond (0.3 m short
+    of the surfaces), and the voxel edge: ``(corridor, wall, beyond, T, inside, behind, voxel)``."""
     from reloc.evaluation.synthetic import Rect
-    from reloc.mapping import PlaneMap
 
     corridor = [r for r in room(6.0, 2.0, 2.7) if r.normal[1] < 0.5]  # all but the y = 0 wall
     wall = Rect((3.0, 0.0, 1.35), (0, 1, 0), (1, 0, 0), 3.0, 1.35)
@@ -1063,6 +1057,21 @@ def test_a_sealed_map_surface_hides_only_where_the_map_never_saw_past_it():
                              np.arange(0.3, 2.4, voxel), indexing="ij"), axis=-1).reshape(-1, 3)
     inside = g[(g[:, 1] > 0.3) & (g[:, 1] < 1.7)]
     behind = g[(g[:, 1] < -0.3) & (g[:, 0] > 2.6)]  # the room beyond (its side wall faces +x)
+    return corridor, wall, beyond, T, inside, behind, voxel
+
+
+def test_a_sealed_map_surface_hides_only_where_the_map_never_saw_past_it():
+    """A noisy sensor's map draws surface across doorways the cameras saw through, so for it a map surface hides a
+    plane only where the map knows no free space between the two (``sealed``). The view of the doorway test above, a
+    side wall 1-2 m behind the corridor's solid y = 0 wall: with free space known only in the corridor (the outside
+    of a building's outer wall), the wall hides it as without ``sealed``; with free space known beyond the wall too,
+    0.3 m short of the surfaces there (a room the mapping run saw, through a doorway its map closed), it hides
+    nothing."""
+    from dataclasses import replace
+
+    from reloc.mapping import PlaneMap
+
+    corridor, wall, beyond, T, inside, behind, voxel = _corridor_and_beyond()
     planes = scene_planes(corridor + [wall])
     got = {}
     for name, free in (("outer wall", inside), ("seen past", np.concatenate([inside, behind]))):
@@ -1110,19 +1119,10 @@ def test_a_rival_earns_no_credit_for_a_plane_outside_the_maps_footprint():
     without the switch there is no share at all."""
     from dataclasses import replace
 
-    from reloc.evaluation.synthetic import Rect
     from reloc.mapping import PlaneMap
     from reloc.matching.footprint import MapFootprint, free_voxel_centres
 
-    corridor = [r for r in room(6.0, 2.0, 2.7) if r.normal[1] < 0.5]
-    wall = Rect((3.0, 0.0, 1.35), (0, 1, 0), (1, 0, 0), 3.0, 1.35)
-    beyond = Rect((2.3, -1.5, 1.0), (1, 0, 0), (0, 1, 0), 0.5, 0.8)
-    T = look_at((4.0, 1.5, 1.3), (1.0, -0.5, 1.0))
-    voxel = 0.15
-    g = np.stack(np.meshgrid(np.arange(voxel / 2, 6.0, voxel), np.arange(-2.0, 2.0, voxel),
-                             np.arange(0.3, 2.4, voxel), indexing="ij"), axis=-1).reshape(-1, 3)
-    inside = g[(g[:, 1] > 0.3) & (g[:, 1] < 1.7)]
-    behind = g[(g[:, 1] < -0.3) & (g[:, 0] > 2.6)]
+    corridor, wall, beyond, T, inside, behind, voxel = _corridor_and_beyond()
     planes = scene_planes(corridor + [wall])
     keys = np.unique(K.cell_keys(inside, voxel))
     centres = free_voxel_centres(keys, voxel)

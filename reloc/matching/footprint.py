@@ -14,20 +14,20 @@ import math
 import numpy as np
 
 from reloc.mapping.fusion import plane_basis
+from reloc.matching import _kernels as K
 
 __all__ = ["FOOTPRINT_CELL_M", "MapFootprint"]
 
 # Edge of a footprint cell (m): the map's free-space voxels are 0.25 m.
 FOOTPRINT_CELL_M = 0.25
-_KEY_MASK = (1 << 21) - 1
-_KEY_OFFSET = 1 << 20
 
 
 def free_voxel_centres(keys: np.ndarray, voxel_m: float) -> np.ndarray:
     """(K, 3) centres of the voxels of edge ``voxel_m`` with keys ``keys`` (as :func:`reloc.mapping.fusion.voxel_keys`
     and the map's free space make them)."""
     keys = np.asarray(keys, dtype=np.int64)
-    ijk = np.stack([(keys >> 42) & _KEY_MASK, (keys >> 21) & _KEY_MASK, keys & _KEY_MASK], axis=1) - _KEY_OFFSET
+    m = K._KEY_MASK
+    ijk = np.stack([(keys >> 42) & m, (keys >> 21) & m, keys & m], axis=1) - K._KEY_OFFSET
     return (ijk + 0.5) * voxel_m
 
 
