@@ -49,28 +49,25 @@ def _pose_columns(label: str, hyps, i: int, T_true: np.ndarray | None) -> str:
             f"{hyps.unknown[i]:7.2f}  {conflicts:9d}")
 
 
-def _outside_footprint(relocalizer: Relocalizer, submap: PlaneSet, used: PlaneSet, shown) -> list[str]:
+def _outside_footprint(relocalizer: Relocalizer, trace: dict, shown) -> list[str]:
     """One line naming, per pose shown, the planes unknown to the map that it puts partly outside the map's footprint
     and the share (``footprint_rival_credit``: that share, over ``occlusion_min_fraction``, of their credit as a
-    rival is taken off); no line when there are none."""
-    p = relocalizer.params
-    fp = relocalizer.footprint if (p.footprint_rival_credit and p.optimistic_rivals) else None
+    rival is taken off); no line when there are none or the decision cuts no credit that way."""
+    fp = relocalizer.credit_footprint
     if fp is None:
         return []
-    all_used, _, vs_ptr, vs_pts = relocalizer.prepare(submap)
-    S = len(used)
-    if len(all_used) < S or not np.allclose(all_used.normals[:S], used.normals):
-        return []
+    vs_ptr, vs_pts = trace["samples"]
     notes = []
     for name, h, i in shown:
-        share = fp.outside_share(vs_ptr[:S + 1], vs_pts, h.R[i:i + 1], h.t[i:i + 1])[0]
-        js = [j for j in range(S) if h.state[i, j] == 1 and share[j] > 0]
+        share = fp.outside_share(vs_ptr, vs_pts, h.R[i:i + 1], h.t[i:i + 1])[0]
+        js = [j for j in range(len(share)) if h.state[i, j] == 1 and share[j] > 0]
         if js:
             notes.append(f"pose {name}: " + ", ".join(f"{j} ({share[j]:.2f})" for j in js))
     if not notes:
         return []
     return [f"planes unknown to the map that a pose puts outside the map's footprint (share of their samples; a "
-            f"rival's credit for each shrinks by share / {p.occlusion_min_fraction:g}): " + "; ".join(notes)]
+            f"rival's credit for each shrinks by share / {relocalizer.params.occlusion_min_fraction:g}): "
+            + "; ".join(notes)]
 
 
 def explain_query(relocalizer: Relocalizer, submap: PlaneSet, T_true: np.ndarray | None = None, *,
@@ -167,7 +164,7 @@ def explain_result(relocalizer: Relocalizer, submap: PlaneSet, res, trace: dict,
         n = first.R[b] @ used.normals[j]
         cells = "".join(f"  {PLANE_STATES[h.state[i, j]]:<9s}{int(h.match[i, j]):>5d}" for _, h, i in shown)
         out.append(f"  {j:2d}  {used.areas[j]:10.2f}  ({n[0]:5.2f} {n[1]:5.2f} {n[2]:5.2f})   {cells}")
-    out.extend(_outside_footprint(relocalizer, submap, used, shown) if tight else [])
+    out.extend(_outside_footprint(relocalizer, trace, shown) if tight else [])
     if T_true is not None:
         ident, why = identified if identified is not None else identifiable(relocalizer, submap, T_true)
         out.append("the true pose: " + ("identifiable (the map confirms it as locate would accept it)" if ident

@@ -324,6 +324,16 @@ class Relocalizer:
         return self._footprint
 
     @property
+    def credit_footprint(self) -> MapFootprint | None:
+        """The footprint whose outside shares cut a rival's credit in the decision over refined poses, or None when
+        they cut nothing (``footprint_rival_credit`` off, no credit for rivals, or no footprint)."""
+        p = self.params
+        if not (p.footprint_rival_credit and p.hidden_rival_credit and p.optimistic_rivals
+                and self._map_knows_free_space):
+            return None
+        return self.footprint
+
+    @property
     def _map_knows_free_space(self) -> bool:
         """Whether the map holds known free space: only then are rivals credited for planes it knows nothing about
         (``optimistic_rivals``)."""
@@ -647,12 +657,12 @@ class Relocalizer:
             # the share of it behind a map surface the map never saw past (the outside of the building's outer
             # wall). The states are left alone: only the rivals' credit changes.
             hidden = self.mark_hidden(used, vs_ptr, vs_pts, R, t, v.state.copy(), exact=True, sealed=True)[v.passed]
-        if (p.footprint_rival_credit and p.hidden_rival_credit and p.optimistic_rivals and self._map_knows_free_space
-                and np.any(v.passed) and self.footprint is not None):
+        footprint = self.credit_footprint
+        if footprint is not None and np.any(v.passed):
             # Whatever the sensor: a rival earns no credit for a plane it puts outside the building, beyond every
             # surface and empty space the mapping runs saw (a noisy sensor's map closes the doorways, so the
             # occlusion test is off for it and nothing else says so).
-            outside = self.footprint.outside_share(vs_ptr, vs_pts, R[v.passed], t[v.passed])
+            outside = footprint.outside_share(vs_ptr, vs_pts, R[v.passed], t[v.passed])
             hidden = outside if hidden is None else np.maximum(hidden, outside)
         vetoed = np.zeros(len(leaders), dtype=bool)
         if p.conflict_vetoes_rivals and p.max_conflict_area_m2 > 0:
@@ -881,7 +891,8 @@ class Relocalizer:
 
         ``trace``: when a dict, it receives what the result was decided on, for explaining it
         (:func:`reloc.evaluation.explain.explain_query`): ``used`` (the submap planes in the order they were fed,
-        as the hypotheses index them), and from the last decision made, ``raw`` (the verified hypotheses) with
+        as the hypotheses index them) with ``samples`` (their verification samples, ``(vs_ptr, vs_pts)`` as
+        :meth:`prepare` gives them), and from the last decision made, ``raw`` (the verified hypotheses) with
         ``raw_decision`` and ``raw_modes``, ``judged`` (the hypotheses of the final decision: one per mode when
         ``tight``, the decision over refined poses, else ``raw`` itself) with ``decision`` and ``modes`` (each
         hypothesis's mode and each mode's score and score as a rival, see :func:`reloc.matching.scoring.decide`;
@@ -905,6 +916,7 @@ class Relocalizer:
         counts["planes_used"] = S
         if trace is not None:
             trace["used"] = used
+            trace["samples"] = (vs_ptr, vs_pts)
         # A map without gravity has no horizontal planes to anchor the ground constraint: the submap's go without.
         facing = (horizontal_facing(used, p.ground_tolerance_rad) if self.planes.gravity is not None
                   else np.zeros(S, dtype=np.int8))
