@@ -9,6 +9,10 @@ query; the table gives the mean, median and 95th percentile of the total and of 
     .venv/bin/python benchmarks/decision_latency.py --prepared DIR/extraction_kinect \\
         --variant hidden_rival_credit=True --repeats 3 --name NAME
 
+``--modes-anew`` adds our matcher with every mode of the decisions over refined poses worked out anew in each round
+of the incremental input (``Relocalizer(reuse_modes=False)``, as before they were kept per query): the same results,
+timed beside ours.
+
 The kernels are warmed up (one pass of every matcher over the first scene's queries) before anything is timed.
 """
 
@@ -27,6 +31,7 @@ if str(HERE) not in sys.path:
 from _common import print_table, results_name, write_results  # noqa: E402
 from reloc_accuracy import parse_variant  # noqa: E402
 
+ANEW = "ours, modes worked out anew each round"
 STAGES = ("total", "select", "verify", "decide", "decide.tighten", "refine")
 
 
@@ -36,6 +41,8 @@ def main(argv=None) -> int:
                     help="A prepared suite (a DIR/<source>_<noise> of reloc_accuracy.py --save-prepared).")
     ap.add_argument("--variant", action="append", default=[], metavar="KEY=VALUE[,KEY=VALUE...]",
                     help="A matcher with these MatchingParams changed, timed beside ours (repeatable).")
+    ap.add_argument("--modes-anew", action="store_true",
+                    help="Also time ours with the refined modes worked out anew in every round (reuse_modes=False).")
     ap.add_argument("--repeats", type=int, default=3, help="Passes per matcher and query (the fastest counts).")
     ap.add_argument("--name", default="decision_latency", help="Result file stem in benchmarks/results/.")
     args = ap.parse_args(argv)
@@ -44,6 +51,8 @@ def main(argv=None) -> int:
         methods = {"ours": None}
         for spec in args.variant:
             methods[f"ours with {spec}"] = spec
+        if args.modes_anew:
+            methods[ANEW] = None
     except ValueError as e:
         ap.error(str(e))
     if args.repeats < 1:
@@ -66,7 +75,10 @@ def main(argv=None) -> int:
     work = []  # (scene, relocalizer per method, queries)
     for scene in spec.scenes:
         qs = prepared.queries_in(scene)
-        work.append((scene, {label: prepared.relocalizer(scene, p) for label, p in params.items()}, qs))
+        relocs = {label: prepared.relocalizer(scene, p) for label, p in params.items()}
+        if ANEW in relocs:
+            relocs[ANEW].reuse_modes = False
+        work.append((scene, relocs, qs))
     # Warm-up: the kernels, then every matcher over the first scene's queries (caches).
     warm_up(("reloc.matching._kernels",))
     _, relocs, qs = work[0]
@@ -74,15 +86,22 @@ def main(argv=None) -> int:
         for r in relocs.values():
             r.locate(q.submap)
     best = {label: [] for label in methods}  # per method: per query, the fastest pass's stage times
+    differ = 0  # queries whose results ours and ANEW do not share
     for scene, relocs, qs in work:
         for q in qs:
             fastest = {label: None for label in methods}
-            for _ in range(args.repeats):
+            for rep in range(args.repeats):
+                got = {}
                 for label, r in relocs.items():
-                    res = r.locate(q.submap)
+                    res = got[label] = r.locate(q.submap)
                     t = res.timings_ms
                     if fastest[label] is None or t.get("total", np.inf) < fastest[label].get("total", np.inf):
                         fastest[label] = dict(t)
+                if ANEW in got and rep == 0:
+                    a, b = got["ours"], got[ANEW]
+                    same_pose = (a.T_map_cam is None) == (b.T_map_cam is None) and (
+                        a.T_map_cam is None or np.array_equal(a.T_map_cam, b.T_map_cam))
+                    differ += int(a.status != b.status or a.reason != b.reason or not same_pose)
             for label in methods:
                 best[label].append(fastest[label])
     rows, out = [], {}
@@ -96,8 +115,11 @@ def main(argv=None) -> int:
                                for s in STAGES])
     print_table(["matcher (ms: mean / median / p95)", *STAGES], rows,
                 title=f"{args.prepared}: {len(best['ours'])} queries, fastest of {args.repeats} passes each")
+    if args.modes_anew:
+        out[ANEW]["results_differ"] = differ
+        print(f"{ANEW}: results differ from ours in {differ} of {len(best['ours'])} queries (status, reason, pose)")
     path = write_results(name, params={"prepared": str(args.prepared), "variants": args.variant,
-                                       "repeats": args.repeats, "noise": spec.noise},
+                                       "modes_anew": args.modes_anew, "repeats": args.repeats, "noise": spec.noise},
                          results=out)
     print(f"wrote {path}")
     return 0

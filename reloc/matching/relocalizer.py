@@ -209,6 +209,8 @@ class _Hypotheses:
         # With hidden_rival_credit (and occlusion): per mode, the share of each plane the map hides from the
         # submap's cameras (:meth:`Relocalizer.mark_hidden`, exact).
         self.hidden_frac: np.ndarray | None = None
+        # The modes worked out from these hypotheses for the decisions over refined poses (Relocalizer._tightened).
+        self.mode_rows = _ModeRows()
 
     def blocked(self) -> np.ndarray | None:
         """Per mode of a decision over refined poses, whether it is no rival: its camera path walks through a wall of
@@ -290,14 +292,42 @@ def support_per_direction(planes: PlaneSet, match_row: np.ndarray, min_area_m2: 
     return support, float(planes.areas[ks][np.abs(planes.normals[ks] @ e) >= 0.5].sum()), e
 
 
+class _ModeRows:
+    """The modes of the decisions over refined poses worked out so far for one set of :class:`_Hypotheses`, a row
+    per key (the leading hypothesis, and whether the decision weighed several modes); see
+    :meth:`Relocalizer._tightened`. The hypotheses only grow, so a row stays true for as long as they live."""
+
+    #: The fields of a :class:`Verification` kept per row.
+    VERIFIED = ("match", "proj", "over", "state", "n_matched", "explained", "unknown", "free", "passed", "free_frac")
+
+    def __init__(self):
+        self.index: dict[tuple[int, bool], int] = {}
+        self.data: dict[str, np.ndarray] = {}
+
+    def add(self, keys: list, rows: dict) -> None:
+        """Store ``rows`` (arrays, one row per key of ``keys``), as :meth:`Relocalizer._mode_rows` gives them."""
+        n = len(self.index)
+        self.index.update((key, n + k) for k, key in enumerate(keys))
+        self.data = rows if not self.data else {name: np.concatenate([self.data[name], rows[name]])
+                                                for name in self.data}
+
+    def take(self, keys: list) -> dict:
+        """The stored rows of ``keys``, in that order."""
+        idx = np.array([self.index[key] for key in keys], np.int64)
+        return {name: a[idx] for name, a in self.data.items()}
+
+
 class Relocalizer:
     """Relocalizes submaps in one plane map; the map index is built once, here.
 
     ``plane_map``: a :class:`~reloc.mapping.PlaneMap` or a :class:`~reloc.planeset.PlaneSet` in the map frame (with
     its gravity). ``brute_force=True`` replaces the index by enumeration of all map triplets (the baseline).
+    ``reuse_modes=False`` works out every mode of the decisions over refined poses anew in each round instead of once
+    per query (:meth:`_tightened`; the same results, slower: the baseline of ``benchmarks/decision_latency.py``).
     """
 
-    def __init__(self, plane_map, params: MatchingParams | None = None, *, brute_force: bool = False):
+    def __init__(self, plane_map, params: MatchingParams | None = None, *, brute_force: bool = False,
+                 reuse_modes: bool = True):
         planes = plane_map if isinstance(plane_map, PlaneSet) else getattr(plane_map, "planes", None)
         if not isinstance(planes, PlaneSet):
             raise ValueError(f"plane_map: expected a PlaneMap or PlaneSet, got {type(plane_map).__name__}")
@@ -305,6 +335,7 @@ class Relocalizer:
         self.params = params or MatchingParams()
         self.planes = planes
         self.brute_force = brute_force
+        self.reuse_modes = reuse_modes
         free = getattr(plane_map, "free_keys", None) if self.params.free_space else None
         self.index: MapIndex = build_index(planes, self.params, free_keys=free,
                                            free_voxel_m=getattr(plane_map, "free_voxel_m", 0.0))
@@ -614,6 +645,10 @@ class Relocalizer:
         With ``conflict_vetoes_rivals``, a mode with a plane of ``max_conflict_area_m2`` or more in conflict with the
         map (that test would turn it away if it won) or hidden behind a map surface, and that explains less than
         ``min_explained_fraction`` of the submap, is no rival either (``vetoed``).
+
+        Each round of the incremental input decides again over all the hypotheses so far, and mostly over the same
+        leaders (about three in four on the relocalization suite): what a leader's mode is does not depend on the
+        other modes, so it is worked out once per ``hyps`` (:class:`_ModeRows`) and taken from there.
         """
         p = self.params
         order = np.argsort(-match_quality(hyps.n_matched, hyps.explained), kind="stable").astype(np.int64)
@@ -621,6 +656,31 @@ class Relocalizer:
         leaders = K.group_poses(np.ascontiguousarray(hyps.R), np.ascontiguousarray(hyps.t), order,
                                 p.distinct_translation_m, p.distinct_rotation_rad, group)
         leaders = leaders[: p.decision_modes]  # in order of quality: the modes that can still matter
+        # Only a rival gets the credit for its small planes: with one mode there is none (a key of its rows).
+        several = len(leaders) > 1
+        rows = hyps.mode_rows if self.reuse_modes else _ModeRows()
+        new = [int(a) for a in leaders if (int(a), several) not in rows.index]
+        if new:
+            rows.add([(a, several) for a in new],
+                     self._mode_rows(hyps, used, vs_ptr, vs_pts, np.asarray(new, np.int64), several))
+        m = rows.take([(int(a), several) for a in leaders])
+        v = Verification(**{name: m[name] for name in _ModeRows.VERIFIED}, evaluated=0)
+        out = _Hypotheses(len(used), hyps.facets)
+        out.add(m["R"], m["t"], hyps.cand[leaders], v)
+        out.leader = leaders[v.passed]
+        out.unrefined = leaders[~m["refined"]]
+        out.impossible = leaders[m["blocked"]]
+        out.vetoed = leaders[m["vetoed"]]
+        out.hidden_frac = m["hidden"][v.passed] if "hidden" in m else None
+        return out
+
+    def _mode_rows(self, hyps, used: PlaneSet, vs_ptr, vs_pts, leaders: np.ndarray, several: bool) -> dict:
+        """What :meth:`_tightened` needs of the modes led by the hypotheses ``leaders`` (indices into ``hyps``),
+        one row each: the refined pose (``R``, ``t``, whether ``refined``), its verification (the fields of
+        :attr:`_ModeRows.VERIFIED`), whether it is ``vetoed`` or its camera path ``blocked``, and with the rivals'
+        credit cut for hidden planes, the share of each plane ``hidden`` (zero where the mode does not pass).
+        ``several``: whether the decision weighs more than one mode (the small planes' credit is marked then)."""
+        p = self.params
         R = hyps.R[leaders].copy()
         t = hyps.t[leaders].copy()
         refined = np.zeros(len(leaders), dtype=bool)
@@ -638,15 +698,14 @@ class Relocalizer:
                             max_offset_m=p.decision_max_offset_m)
         v = replace(sharp, n_matched=v.n_matched, explained=v.explained, unknown=v.unknown, passed=v.passed)
         small = None
-        if p.small_rival_credit and p.optimistic_rivals and self._map_knows_free_space and len(leaders) > 1:
-            # Only a rival gets the credit: with one mode there is none.
+        if p.small_rival_credit and p.optimistic_rivals and self._map_knows_free_space and several:
             small = self.mark_small_unknown(used, vs_ptr, vs_pts, R, t, cand, v)
         hidden = None
         if p.occlusion:
             # The exact shares cost a full count; only rivals that get credit use them (see :meth:`_decide`).
             exact = p.hidden_rival_credit and p.optimistic_rivals and self._map_knows_free_space
             frac = self.mark_hidden(used, vs_ptr, vs_pts, R, t, v.state, exact=exact)
-            hidden = frac[v.passed] if exact else None
+            hidden = frac if exact else None
             if small is not None:
                 # A small plane behind a map surface earns no credit (its hidden share), but counts against no pose:
                 # planes too small to count count only when they match.
@@ -656,13 +715,15 @@ class Relocalizer:
             # Occlusion off (a noisy sensor's map closes doorways): a rival's credit for a plane still shrinks with
             # the share of it behind a map surface the map never saw past (the outside of the building's outer
             # wall). The states are left alone: only the rivals' credit changes.
-            hidden = self.mark_hidden(used, vs_ptr, vs_pts, R, t, v.state.copy(), exact=True, sealed=True)[v.passed]
+            hidden = self.mark_hidden(used, vs_ptr, vs_pts, R, t, v.state.copy(), exact=True, sealed=True)
         footprint = self.credit_footprint
-        if footprint is not None and np.any(v.passed):
+        if footprint is not None:
             # Whatever the sensor: a rival earns no credit for a plane it puts outside the building, beyond every
             # surface and empty space the mapping runs saw (a noisy sensor's map closes the doorways, so the
             # occlusion test is off for it and nothing else says so).
-            outside = footprint.outside_share(vs_ptr, vs_pts, R[v.passed], t[v.passed])
+            outside = np.zeros((len(leaders), len(used)))
+            if np.any(v.passed):
+                outside[v.passed] = footprint.outside_share(vs_ptr, vs_pts, R[v.passed], t[v.passed])
             hidden = outside if hidden is None else np.maximum(hidden, outside)
         vetoed = np.zeros(len(leaders), dtype=bool)
         if p.conflict_vetoes_rivals and p.max_conflict_area_m2 > 0:
@@ -676,13 +737,10 @@ class Relocalizer:
             # quarter tells apart, not the scene; vetoed, the view (labelled ambiguous) was answered.
             vetoed = (contradicted >= p.max_conflict_area_m2) & (v.explained < p.min_explained_fraction)
         blocked = self.path_blocked(used, R, t) if p.path_test else np.zeros(len(leaders), dtype=bool)
-        out = _Hypotheses(len(used), hyps.facets)
-        out.add(R, t, cand, v)
-        out.leader = leaders[v.passed]
-        out.unrefined = leaders[~refined]
-        out.impossible = leaders[blocked]
-        out.vetoed = leaders[vetoed]
-        out.hidden_frac = hidden
+        out = {name: getattr(v, name) for name in _ModeRows.VERIFIED}
+        out.update(R=R, t=t, refined=refined, vetoed=vetoed, blocked=blocked)
+        if hidden is not None:
+            out["hidden"] = hidden
         return out
 
     def _judge(self, hyps, used: PlaneSet, vs_ptr, vs_pts, min_matched: int, timings: dict,
