@@ -32,7 +32,7 @@ from _common import print_table, results_name, write_results  # noqa: E402
 from reloc_accuracy import parse_variant  # noqa: E402
 
 ANEW = "ours, modes worked out anew each round"
-STAGES = ("total", "select", "verify", "decide", "decide.tighten", "refine")
+STAGES = ("total", "prepare", "select", "verify", "decide", "decide.tighten", "refine")
 
 
 def main(argv=None) -> int:

@@ -313,6 +313,80 @@ def test_incremental_order_starts_with_ground_and_separated_planes():
     assert len(dirs) >= 3
 
 
+def test_submap_triplets_are_every_triple_with_a_new_plane_the_ground_first():
+    """The submap triplets of a round, against the definition spelled out plane by plane: every triple of positions
+    (in the order of ``itertools.combinations``) with a plane from ``new_from`` on; with the ground constraint, only
+    those with exactly one horizontal plane, put first, the other two in increasing order; then the angle window
+    and the triple product. Random normals (a third of them horizontal, up or down), positions in order or not,
+    with and without the structural constraints."""
+    import itertools
+    from dataclasses import replace
+
+    def reference(normals, facing, positions, new_from, params):
+        use_ground = params.structural_constraints and bool(np.any(facing[positions] != 0))
+        lo, hi = ((params.triplet_min_angle_rad, params.triplet_max_angle_rad) if params.structural_constraints
+                  else (params.degenerate_min_angle_rad, math.pi - params.degenerate_min_angle_rad))
+        rows = []
+        for a, b, c in itertools.combinations(range(len(positions)), 3):
+            tri = [int(positions[a]), int(positions[b]), int(positions[c])]
+            if c < new_from:
+                continue
+            if use_ground:
+                g = [x for x in tri if facing[x] != 0]
+                if len(g) != 1:
+                    continue
+                tri = [g[0], *sorted(x for x in tri if x != g[0])]
+            n = normals[tri]
+            angles = [math.acos(min(1.0, max(-1.0, float(n[i] @ n[j])))) for i, j in ((0, 1), (0, 2), (1, 2))]
+            if all(lo <= x <= hi for x in angles) and abs(n[0] @ np.cross(n[1], n[2])) >= params.min_triple_product:
+                rows.append((tri, facing[tri[0]] if use_ground else 0))
+        return rows, use_ground
+
+    rng = np.random.default_rng(4)
+    checked = 0
+    for _ in range(300):
+        S = int(rng.integers(3, 16))
+        normals = rng.normal(size=(S, 3))
+        flat = rng.random(S) < 0.35
+        normals[flat] = [0.0, 0.0, 1.0]
+        normals[flat & (rng.random(S) < 0.5)] *= -1
+        normals /= np.linalg.norm(normals, axis=1, keepdims=True)
+        facing = np.where(flat, np.sign(normals[:, 2]), 0).astype(np.int8)
+        positions = rng.choice(S, size=int(rng.integers(0, S + 1)), replace=False)
+        if rng.random() < 0.5:
+            positions = np.sort(positions)
+        new_from = int(rng.integers(0, len(positions) + 1))
+        params = MatchingParams() if rng.random() < 0.7 else replace(MatchingParams(), structural_constraints=False)
+        tri, face0, use_ground = submap_triplets(normals, facing, positions, new_from, params)
+        rows, ground = reference(normals, facing, positions, new_from, params)
+        assert use_ground == ground and tri.dtype == np.int32 and face0.dtype == np.int8
+        assert tri.tolist() == [r[0] for r in rows] and face0.tolist() == [r[1] for r in rows]
+        checked += len(rows)
+    assert checked > 1000
+
+
+def test_sample_distances_are_the_smallest_entries_of_the_full_distance_matrix():
+    """The smallest distance between the verification samples of every two planes, bit for bit as from the full
+    (M, M) distance matrix (the kernel never builds it), on random sample sets of one to 20 points a plane at
+    several scales; a plane without samples takes the matrix's path."""
+    def reference(ptr, pts):
+        d = np.linalg.norm(pts[:, None, :] - pts[None, :, :], axis=2)
+        return np.minimum.reduceat(np.minimum.reduceat(d, ptr[:-1], axis=0), ptr[:-1], axis=1)
+
+    rng = np.random.default_rng(5)
+    for scale, shift in ((0.01, 0.0), (1.0, 3.0), (10.0, 100.0)):
+        for _ in range(40):
+            n = rng.integers(1, 21, size=int(rng.integers(1, 25)))
+            ptr = np.concatenate([[0], np.cumsum(n)]).astype(np.int64)
+            pts = rng.normal(size=(int(ptr[-1]), 3)) * scale + shift
+            got = sample_distances(ptr, pts)
+            assert np.array_equal(got, reference(ptr, pts)) and np.array_equal(got, got.T)
+            assert np.all(np.diag(got) == 0.0)
+    ptr = np.array([0, 2, 2, 4], np.int64)  # the second plane has no sample
+    pts = rng.normal(size=(4, 3))
+    assert np.array_equal(sample_distances(ptr, pts), reference(ptr, pts))
+
+
 def test_a_noisy_sensors_far_plane_over_a_larger_one_is_left_out_of_the_submap():
     # In the camera's frame (z forward, y down): a wall 6 m ahead (6 x 3 m) and, over it, a plane turned 9 deg
     # (1.2 x 1.2 m, a fit across the wall and a jamb), a door 6 cm in front of the wall (parallel: the fusion's to

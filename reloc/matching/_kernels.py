@@ -1666,3 +1666,33 @@ def _warmup_fps() -> None:
     out_ptr = np.empty(3, np.int64)
     out = np.empty((8, 3))
     farthest_point_samples(pts, np.array([0, 6, 10], np.int64), 4, out_ptr, out)
+
+
+@njit
+def sample_set_distances(ptr, points, out):
+    """``out`` (S, S): the smallest distance between the samples of every two planes (CSR ``ptr``, ``points``
+    (M, 3) float64), 0 on the diagonal. Every plane must have a sample. The same numbers, bit for bit, as the
+    smallest entries of the full (M, M) distance matrix, without building it (squared distances summed in the same
+    order; the square root taken of the smallest, which is the smallest root)."""
+    S = ptr.shape[0] - 1
+    for a in range(S):
+        out[a, a] = 0.0
+        for b in range(a + 1, S):
+            best = np.inf
+            for i in range(ptr[a], ptr[a + 1]):
+                px, py, pz = points[i, 0], points[i, 1], points[i, 2]
+                for k in range(ptr[b], ptr[b + 1]):
+                    dx = px - points[k, 0]
+                    dy = py - points[k, 1]
+                    dz = pz - points[k, 2]
+                    d = dx * dx + dy * dy + dz * dz
+                    if d < best:
+                        best = d
+            out[a, b] = math.sqrt(best)
+            out[b, a] = out[a, b]
+
+
+@register_warmup
+def _warmup_sample_set_distances() -> None:
+    out = np.empty((2, 2))
+    sample_set_distances(np.array([0, 2, 3], np.int64), np.random.default_rng(0).random((3, 3)), out)

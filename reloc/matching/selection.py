@@ -12,6 +12,7 @@
 
 from __future__ import annotations
 
+import functools
 import itertools
 import math
 
@@ -115,6 +116,15 @@ def order_submap_planes(planes: PlaneSet, params: MatchingParams) -> np.ndarray:
     return order[: params.max_submap_planes]
 
 
+@functools.lru_cache(maxsize=128)
+def _combinations3(k: int) -> np.ndarray:
+    """(C(k, 3), 3) the index triples ``a < b < c`` below ``k``, in the order of ``itertools.combinations``
+    (read-only: shared between calls)."""
+    out = np.array(list(itertools.combinations(range(k), 3)), dtype=np.int64).reshape(-1, 3)
+    out.flags.writeable = False
+    return out
+
+
 def submap_triplets(
     normals: np.ndarray, facing: np.ndarray, positions: np.ndarray, new_from: int, params: MatchingParams
 ) -> tuple[np.ndarray, np.ndarray, bool]:
@@ -135,21 +145,18 @@ def submap_triplets(
         lo, hi = params.triplet_min_angle_rad, params.triplet_max_angle_rad
     else:
         lo, hi = params.degenerate_min_angle_rad, math.pi - params.degenerate_min_angle_rad
-    rows = []
-    for a, b, c in itertools.combinations(range(k), 3):
-        if c < new_from:
-            continue
-        tri = [int(positions[a]), int(positions[b]), int(positions[c])]
-        if use_ground:
-            g = [x for x in tri if is_ground[x]]
-            if len(g) != 1:
-                continue
-            others = sorted(x for x in tri if x != g[0])
-            tri = [g[0], *others]
-        rows.append(tri)
-    if not rows:
+    abc = _combinations3(k)
+    tri = np.asarray(positions, dtype=np.int64)[abc[abc[:, 2] >= new_from]]
+    if use_ground:
+        # Exactly one horizontal plane per row, put first; the other two in increasing order.
+        g = is_ground[tri]
+        one = g.sum(axis=1) == 1
+        tri, g = tri[one], g[one]
+        others = np.sort(tri[~g].reshape(-1, 2), axis=1)
+        tri = np.column_stack([tri[g], others])
+    if not len(tri):
         return np.zeros((0, 3), np.int32), np.zeros(0, np.int8), use_ground
-    tri = np.array(rows, dtype=np.int32)
+    tri = tri.astype(np.int32)
     n0, n1, n2 = normals[tri[:, 0]], normals[tri[:, 1]], normals[tri[:, 2]]
 
     def ang(u, v):
@@ -174,6 +181,12 @@ def sample_distances(ptr: np.ndarray, points: np.ndarray) -> np.ndarray:
     S = len(ptr) - 1
     if S == 0 or len(points) == 0:
         return np.zeros((S, S))
+    if np.all(np.diff(ptr) > 0):
+        out = np.empty((S, S))
+        K.sample_set_distances(np.ascontiguousarray(ptr, dtype=np.int64),
+                               np.ascontiguousarray(points, dtype=np.float64), out)
+        return out
+    # A plane without samples: the full matrix, as reduceat takes such a plane (the sample at its start).
     d = np.linalg.norm(points[:, None, :] - points[None, :, :], axis=2)
     starts = np.asarray(ptr[:-1])
     rows = np.minimum.reduceat(d, starts, axis=0)
