@@ -678,7 +678,7 @@ class Relocalizer:
         """What :meth:`_tightened` needs of the modes led by the hypotheses ``leaders`` (indices into ``hyps``),
         one row each: the refined pose (``R``, ``t``, whether ``refined``), its verification (the fields of
         :attr:`_ModeRows.VERIFIED`), whether it is ``vetoed`` or its camera path ``blocked``, and with the rivals'
-        credit cut for hidden planes, the share of each plane ``hidden`` (zero where the mode does not pass).
+        credit cut for hidden planes, the share of each plane ``hidden`` (read only where the mode passes).
         ``several``: whether the decision weighs more than one mode (the small planes' credit is marked then)."""
         p = self.params
         R = hyps.R[leaders].copy()

@@ -186,7 +186,8 @@ def sample_distances(ptr: np.ndarray, points: np.ndarray) -> np.ndarray:
         K.sample_set_distances(np.ascontiguousarray(ptr, dtype=np.int64),
                                np.ascontiguousarray(points, dtype=np.float64), out)
         return out
-    # A plane without samples: the full matrix, as reduceat takes such a plane (the sample at its start).
+    # A plane without samples: the full matrix, as before the kernel (reduceat gives such a plane the distances of
+    # the sample at its start).
     d = np.linalg.norm(points[:, None, :] - points[None, :, :], axis=2)
     starts = np.asarray(ptr[:-1])
     rows = np.minimum.reduceat(d, starts, axis=0)
