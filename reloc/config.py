@@ -743,6 +743,20 @@ class EvaluationConfig(_Section):
         "7 false positives fewer, 6 of them views of the twin rooms or the symmetric room labelled ambiguous, for 8 "
         "true poses fewer).",
     )
+    shared_unknown_credit: bool = Field(
+        False,
+        description="With optimistic_rivals, whether a rival that matches fewer planes than the winner still earns "
+        "credit for the planes the winner leaves unknown to the map too, when the winner itself explains "
+        "shared_unknown_min_explained of its submap. Such a plane says nothing about which of the two is right, "
+        "yet the credit went to the rival alone (docs/BENCHMARKS.md, 'Planes neither pose explains': the suite and "
+        "its nine replicates, three sensors, +19 true poses, no false positive more; True is the old behaviour).",
+    )
+    shared_unknown_min_explained: float = Field(
+        0.9, ge=0,
+        description="The explained fraction from which a winner's planes unknown to the map earn its weaker rivals no "
+        "credit (shared_unknown_credit off); a winner that leaves more unknown keeps the rivals' credit as slack: "
+        "at 0.85, a twin-room view labelled ambiguous was answered two rooms along.",
+    )
     evidence_area_m2: float = Field(
         1.0, gt=0, description="A matched plane's weight (Eq. 12-13) grows with its area up to this (small facets are "
         "weak evidence, and often clutter).",

@@ -1425,6 +1425,53 @@ def test_a_rivals_credit_for_a_plane_shrinks_with_its_hidden_share():
     assert got["on, half hidden"].runner_up_score == pytest.approx(2 / 6, rel=1e-3)
 
 
+def test_a_plane_the_winner_leaves_unknown_too_earns_a_weaker_rival_no_credit():
+    # Nine submap planes (six of 36 m^2, three of 1 m^2; a match weighs 1 / the modes matching the plane, at most
+    # area / evidence_area_m2). The winner matches planes 0-5 and leaves 6-8 where the map knows nothing. The
+    # rival, 2 m away, matches 0-3 and 8 (overlap 0.6), has plane 4 in conflict with the map, plane 5 in its known
+    # free space, and leaves 6 and 7 unknown. Weights: winner 4 x 0.5 + 1 + 1 = 4, rival 4 x 0.5 + 0.6 - 1 = 1.6,
+    # of 5.6. Credited with 0.75 of a match for 6 and 7, the rival has (1.6 + 1.5) / 5.6 and the winner is 1.29
+    # times it: ambiguous (the old rule, shared_unknown_credit). Planes 6 and 7 are unknown at the winner too, so
+    # they cannot tell the two apart: without that credit the winner is 2.5 times ahead. The credit stays when the
+    # winner explains less than shared_unknown_min_explained of its submap, and when the rival matches as many
+    # planes as the winner (plane 4 matched at a small overlap instead of in conflict).
+    from dataclasses import replace
+
+    from reloc.config import Config
+    from reloc.matching.scoring import decide
+
+    new = MatchingParams.from_config(Config())  # the default
+    old = MatchingParams.from_config(Config.model_validate({"evaluation": {"shared_unknown_credit": True}}))
+    assert not new.shared_unknown_credit and old.shared_unknown_credit
+    R = np.stack([np.eye(3)] * 2)
+    t = np.array([[0.0, 0.0, 0.0], [2.0, 0.0, 0.0]])
+    match = np.array([[0, 1, 2, 3, 4, 5, -1, -1, -1], [10, 11, 12, 13, -1, -1, -1, -1, 18]], np.int32)
+    state = np.array([[0, 0, 0, 0, 0, 0, 1, 1, 1], [0, 0, 0, 0, 2, 3, 1, 1, 0]], np.int8)
+    overlap = np.where(match >= 0, 1.0, 0.0)
+    overlap[1, 8] = 0.6
+    areas = np.array([36.0] * 6 + [1.0] * 3)
+    explained = np.array([36 / 39, 25 / 39])  # square roots of the areas
+
+    def run(params, explained=explained, match=match, state=state, overlap=overlap):
+        return decide(R, t, match, overlap, (match >= 0).sum(axis=1), explained, params, state=state, areas=areas,
+                      unknown=np.array([3 / 39, 2 / 39]))
+
+    got_old, got_new = run(old), run(new)
+    assert not got_old.accepted and got_old.reason.startswith("ambiguous"), got_old.reason
+    assert got_old.runner_up_score == pytest.approx(3.1 / 5.6, rel=1e-3)
+    assert got_new.accepted and got_new.best == 0, got_new.reason
+    assert got_new.score == pytest.approx(4 / 5.6, rel=1e-3)  # the winner's density is the same
+    assert got_new.runner_up_score == pytest.approx(1.6 / 5.6, rel=1e-3)
+    low = run(new, explained=np.array([0.88, 25 / 39]))
+    assert not low.accepted and low.runner_up_score == pytest.approx(3.1 / 5.6, rel=1e-3), low.reason
+    assert run(replace(new, shared_unknown_min_explained=0.85), explained=np.array([0.88, 25 / 39])).accepted
+    twin_match, twin_state, twin_overlap = match.copy(), state.copy(), overlap.copy()
+    twin_match[1, 4], twin_state[1, 4], twin_overlap[1, 4] = 14, 0, 0.1
+    twin = run(new, match=twin_match, state=twin_state, overlap=twin_overlap)
+    # Plane 4 now matched in both modes (0.5 a match): winner 3.5, rival 2 + 0.05 + 0.6 = 2.65, of 6.15.
+    assert not twin.accepted and twin.runner_up_score == pytest.approx((2.65 + 1.5) / 6.15, rel=1e-3), twin.reason
+
+
 def test_a_camera_path_through_a_map_wall_is_blocked_but_not_one_through_a_doorway():
     """A window's cameras walk 2 m across the y = 0 wall of a corridor (map: the corridor, that wall solid or with
     a doorway 0.9 m wide at x from 2.55 to 3.45 m). Across the solid wall the path is blocked; through the doorway

@@ -116,6 +116,8 @@ class MatchingParams:
     footprint_rival_credit: bool = True
     footprint_margin_m: float = 1.0
     small_rival_credit: bool = True
+    shared_unknown_credit: bool = False
+    shared_unknown_min_explained: float = 0.9
     near_decision_offsets: bool = True
     near_decision_min_area_m2: float = 0.5
     # Set by scaled_to_sensor for near_decision_offsets: the exponent k of the sensor's law sigma = c z^k (0: not
@@ -284,6 +286,8 @@ class MatchingParams:
             footprint_rival_credit=e.footprint_rival_credit,
             footprint_margin_m=e.footprint_margin_m,
             small_rival_credit=e.small_rival_credit,
+            shared_unknown_credit=e.shared_unknown_credit,
+            shared_unknown_min_explained=e.shared_unknown_min_explained,
             near_decision_offsets=e.near_decision_offsets,
             near_decision_min_area_m2=e.near_decision_min_area_m2,
             evidence_area_m2=e.evidence_area_m2,

@@ -220,6 +220,8 @@ def decide(
     wall of the map (see ``MatchingParams.path_test``); their modes are no rivals, though they may still win.
     ``hidden_frac`` (H, S): the share of each plane the map hides from the submap's cameras, which shrinks an
     optimistic rival's credit for it too (``hidden_rival_credit``; none left at ``occlusion_min_fraction``).
+    Without ``shared_unknown_credit``, once the winner is known and explains ``shared_unknown_min_explained`` of the
+    submap, a rival matching fewer planes than it earns no credit for the planes the winner leaves unknown too.
 
     ``timings_ms``: when given, the milliseconds of the frequency weights (``"weights"``, Eq. 12-13) and of the kernel
     density (``"density"``, Eq. 14) are added to it. ``modes``: when given, it receives the poses' modes, for
@@ -261,18 +263,25 @@ def decide(
         # planes the map does not know).
         gain = np.sum(np.where(match >= 0, overlap, 0.0) * plane_w[None, :], axis=1)
         against = np.sum(np.where(in_conflict(state), plane_w[None, :], 0.0), axis=1)
-        w_opt = np.maximum(gain - against + params.rival_unknown_weight * np.sum(credit, axis=1), 0.0)
-        mode_opt = np.bincount(group, weights=w_opt, minlength=n_modes) / np.maximum(size, 1)
-        # On the scale of the score (normalized by the poses' actual total weight); when conflicts leave no pose
-        # any weight, the score is 0 whatever the rivals hold, and they are normalized by their own total.
         z = float(mode_w.sum())
-        rival = pose_density(R[leaders], t[leaders], mode_opt, params)
-        if z > 0:
-            rival = rival * (float(mode_opt.sum()) / z)
-    if blocked is not None and np.any(blocked):
-        # A pose whose camera path walks through a wall of the map is no rival (it may still win: a map wall
-        # drawn across a doorway must not turn the true pose away).
-        rival = np.where(np.asarray(blocked)[leaders], 0.0, rival)
+
+        def credited_density(credit):
+            w_opt = np.maximum(gain - against + params.rival_unknown_weight * np.sum(credit, axis=1), 0.0)
+            mode_opt = np.bincount(group, weights=w_opt, minlength=n_modes) / np.maximum(size, 1)
+            # On the scale of the score (normalized by the poses' actual total weight); when conflicts leave no
+            # pose any weight, the score is 0 whatever the rivals hold, and they are normalized by their own total.
+            dens = pose_density(R[leaders], t[leaders], mode_opt, params)
+            return dens * (float(mode_opt.sum()) / z) if z > 0 else dens
+
+        rival = credited_density(credit)
+
+    def unblocked(rival):
+        if blocked is not None and np.any(blocked):
+            # A pose whose camera path walks through a wall of the map is no rival (it may still win: a map wall
+            # drawn across a doorway must not turn the true pose away).
+            return np.where(np.asarray(blocked)[leaders], 0.0, rival)
+        return rival
+    rival = unblocked(rival)
     if modes is not None:
         modes.update(group=group, score=density, rival=rival)
     if timings_ms is not None:
@@ -300,6 +309,19 @@ def decide(
     members = np.flatnonzero((group == g_best) & eligible)
     best = int(members[np.argmax(quality[members])])
     score = float(density[g_best])
+    if credited and not params.shared_unknown_credit and explained[best] >= params.shared_unknown_min_explained:
+        # A plane the winner leaves unknown to the map too cannot tell the two apart: a rival that matches fewer
+        # planes earns nothing for it. A rival matching as many (a twin room) keeps the credit, and so do the
+        # rivals of a winner that leaves more of its submap unknown: there the credit is the margin that keeps a
+        # wrong winner, with the truth no hypothesis or contradicted by a map that saw its room less, from standing.
+        shared = (np.asarray(state)[best] == 1)[None, :] & (np.asarray(n_matched) < n_matched[best])[:, None]
+        if shared.any():
+            t3 = time.perf_counter()
+            rival = unblocked(credited_density(np.where(shared, 0.0, credit)))
+            if modes is not None:
+                modes.update(rival=rival)
+            if timings_ms is not None:
+                timings_ms["density"] += (time.perf_counter() - t3) * 1e3
     other = distinct_from(R[leaders], t[leaders], int(np.flatnonzero(leaders == leaders[g_best])[0]), params)
     other &= np.arange(n_modes) != g_best
     runner = float(rival[other].max()) if other.any() else 0.0
