@@ -281,6 +281,7 @@ def decide(
             # drawn across a doorway must not turn the true pose away).
             return np.where(np.asarray(blocked)[leaders], 0.0, rival)
         return rival
+
     rival = unblocked(rival)
     if modes is not None:
         modes.update(group=group, score=density, rival=rival)
