@@ -245,6 +245,18 @@ def decide(
     size = np.bincount(group, minlength=n_modes)
     mode_w = np.bincount(group, weights=w, minlength=n_modes) / np.maximum(size, 1)
     density = pose_density(R[leaders], t[leaders], mode_w, params)
+    t2 = time.perf_counter()
+    need = params.min_matched_planes if min_matched is None else min_matched
+    eligible = (n_matched >= need) & explains_enough(explained, unknown, state, params, n_matched, areas, match,
+                                                     facets)
+    best = g_best = -1
+    if eligible.any():
+        mode_ok = np.bincount(group, weights=eligible.astype(float), minlength=n_modes) > 0
+        # Best: the eligible mode of highest density; its best eligible hypothesis carries the pose.
+        g_best = int(np.flatnonzero(mode_ok)[np.argmax(density[mode_ok])])
+        members = np.flatnonzero((group == g_best) & eligible)
+        best = int(members[np.argmax(quality[members])])
+    t3 = time.perf_counter()
     rival = density
     credited = optimistic and params.optimistic_rivals and state is not None
     if credited:
@@ -258,41 +270,39 @@ def decide(
             # A plane the twin pose puts partly behind a wall of the map (a door jamb inside it) is partly a plane
             # no camera could have seen there: at occlusion_min_fraction it counts against the pose (state 6).
             credit = credit * np.clip(1.0 - hidden_frac / params.occlusion_min_fraction, 0.0, 1.0)
+        if (best >= 0 and not params.shared_unknown_credit
+                and explained[best] >= params.shared_unknown_min_explained):
+            # A plane the winner leaves unknown to the map too cannot tell the two apart: a rival that matches fewer
+            # planes earns nothing for it. A rival matching as many (a twin room) keeps the credit, and so do the
+            # rivals of a winner that leaves more of its submap unknown: there the credit is the margin that keeps
+            # a wrong winner, with the truth no hypothesis or contradicted by a map that saw its room less, from
+            # standing.
+            shared = (np.asarray(state)[best] == 1)[None, :] & (np.asarray(n_matched) < n_matched[best])[:, None]
+            credit = np.where(shared, 0.0, credit)
         # The credit adds to the rival's evidence before it is clipped at zero: planes in conflict with the map
         # still count against it (a pose that contradicts the map more than it matches gains nothing from
         # planes the map does not know).
         gain = np.sum(np.where(match >= 0, overlap, 0.0) * plane_w[None, :], axis=1)
         against = np.sum(np.where(in_conflict(state), plane_w[None, :], 0.0), axis=1)
+        w_opt = np.maximum(gain - against + params.rival_unknown_weight * np.sum(credit, axis=1), 0.0)
+        mode_opt = np.bincount(group, weights=w_opt, minlength=n_modes) / np.maximum(size, 1)
+        # On the scale of the score (normalized by the poses' actual total weight); when conflicts leave no pose
+        # any weight, the score is 0 whatever the rivals hold, and they are normalized by their own total.
         z = float(mode_w.sum())
-
-        def credited_density(credit):
-            w_opt = np.maximum(gain - against + params.rival_unknown_weight * np.sum(credit, axis=1), 0.0)
-            mode_opt = np.bincount(group, weights=w_opt, minlength=n_modes) / np.maximum(size, 1)
-            # On the scale of the score (normalized by the poses' actual total weight); when conflicts leave no
-            # pose any weight, the score is 0 whatever the rivals hold, and they are normalized by their own total.
-            dens = pose_density(R[leaders], t[leaders], mode_opt, params)
-            return dens * (float(mode_opt.sum()) / z) if z > 0 else dens
-
-        rival = credited_density(credit)
-
-    def unblocked(rival):
-        if blocked is not None and np.any(blocked):
-            # A pose whose camera path walks through a wall of the map is no rival (it may still win: a map wall
-            # drawn across a doorway must not turn the true pose away).
-            return np.where(np.asarray(blocked)[leaders], 0.0, rival)
-        return rival
-
-    rival = unblocked(rival)
+        rival = pose_density(R[leaders], t[leaders], mode_opt, params)
+        if z > 0:
+            rival = rival * (float(mode_opt.sum()) / z)
+    if blocked is not None and np.any(blocked):
+        # A pose whose camera path walks through a wall of the map is no rival (it may still win: a map wall
+        # drawn across a doorway must not turn the true pose away).
+        rival = np.where(np.asarray(blocked)[leaders], 0.0, rival)
     if modes is not None:
         modes.update(group=group, score=density, rival=rival)
     if timings_ms is not None:
-        t2 = time.perf_counter()
+        t4 = time.perf_counter()
         timings_ms["weights"] = timings_ms.get("weights", 0.0) + (t1 - t0) * 1e3
-        timings_ms["density"] = timings_ms.get("density", 0.0) + (t2 - t1) * 1e3
-    need = params.min_matched_planes if min_matched is None else min_matched
-    eligible = (n_matched >= need) & explains_enough(explained, unknown, state, params, n_matched, areas, match,
-                                                     facets)
-    if not eligible.any():
+        timings_ms["density"] = timings_ms.get("density", 0.0) + (t2 - t1 + t4 - t3) * 1e3
+    if best < 0:
         a = int(np.argmax(quality))
         return Decision(
             False,
@@ -304,25 +314,7 @@ def decide(
                if params.min_explained_known_fraction > 0 else ")"),
             -1, 0.0, 0.0, n_modes,
         )
-    mode_ok = np.bincount(group, weights=eligible.astype(float), minlength=n_modes) > 0
-    # Best: the eligible mode of highest density; its best eligible hypothesis carries the pose.
-    g_best = int(np.flatnonzero(mode_ok)[np.argmax(density[mode_ok])])
-    members = np.flatnonzero((group == g_best) & eligible)
-    best = int(members[np.argmax(quality[members])])
     score = float(density[g_best])
-    if credited and not params.shared_unknown_credit and explained[best] >= params.shared_unknown_min_explained:
-        # A plane the winner leaves unknown to the map too cannot tell the two apart: a rival that matches fewer
-        # planes earns nothing for it. A rival matching as many (a twin room) keeps the credit, and so do the
-        # rivals of a winner that leaves more of its submap unknown: there the credit is the margin that keeps a
-        # wrong winner, with the truth no hypothesis or contradicted by a map that saw its room less, from standing.
-        shared = (np.asarray(state)[best] == 1)[None, :] & (np.asarray(n_matched) < n_matched[best])[:, None]
-        if shared.any():
-            t3 = time.perf_counter()
-            rival = unblocked(credited_density(np.where(shared, 0.0, credit)))
-            if modes is not None:
-                modes.update(rival=rival)
-            if timings_ms is not None:
-                timings_ms["density"] += (time.perf_counter() - t3) * 1e3
     other = distinct_from(R[leaders], t[leaders], int(np.flatnonzero(leaders == leaders[g_best])[0]), params)
     other &= np.arange(n_modes) != g_best
     runner = float(rival[other].max()) if other.any() else 0.0
