@@ -341,6 +341,16 @@ class MatchingConfig(_Section):
         description="A submap plane where the sensor's depth noise (extraction's law) reaches this, lying over a "
         "larger submap plane 3-25 deg off it, is left out: a fit across several surfaces (0 = never).",
     )
+    sparse_overlay_sigma_m: float = Field(
+        0.015, ge=0,
+        description="A noisy sensor's plane laid over a larger one as above, from where the noise reaches this, "
+        "and sparse (below), a fit that few of the window's frames made, does not keep a pose from explaining enough "
+        "by its conflicts with the map (0 = never).",
+    )
+    sparse_overlay_max_density: float = Field(
+        0.1, ge=0, le=1,
+        description="Sparse: at most this share of the larger plane's points per m^2 (0 = never).",
+    )
     degenerate_min_angle_deg: float = Field(
         15.0, gt=0, le=60,
         description="Normals closer than this (or than 180 minus this) make a triplet degenerate (always checked).",

@@ -31,6 +31,14 @@ class MatchingParams:
     # set by scaled_to_sensor (0: not scaled to a sensor, nothing left out).
     far_overlay_sigma_m: float = 0.06
     far_overlay_min_depth_m: float = 0.0
+    # A noisy sensor's plane (see scaled_to_sensor) from where its noise reaches sparse_overlay_sigma_m (0: never;
+    # sparse_overlay_min_depth_m, set by scaled_to_sensor), lying over a larger one as above and sparse, at most
+    # sparse_overlay_max_density of its points per m^2 (a fit that few of the window's frames made), stays in the
+    # submap, but its conflicts with the map do not keep a pose from explaining enough, as a facet's do not
+    # (selection.sparse_overlays).
+    sparse_overlay_sigma_m: float = 0.015
+    sparse_overlay_max_density: float = 0.1
+    sparse_overlay_min_depth_m: float = 0.0
     # Triplet selection.
     structural_constraints: bool = True
     ground_tolerance_rad: float = math.radians(15.0)
@@ -204,6 +212,8 @@ class MatchingParams:
             initial_planes=m.initial_planes,
             max_submap_planes=m.max_submap_planes,
             far_overlay_sigma_m=m.far_overlay_sigma_m,
+            sparse_overlay_sigma_m=m.sparse_overlay_sigma_m,
+            sparse_overlay_max_density=m.sparse_overlay_max_density,
             structural_constraints=m.structural_constraints,
             ground_tolerance_rad=r(m.ground_tolerance_deg),
             triplet_min_angle_rad=r(m.triplet_min_angle_deg),
@@ -399,6 +409,8 @@ def scaled_to_sensor(params: MatchingParams, noise_model: str, noise_coeff: floa
         rival_unknown_weight=(min(params.rival_unknown_weight, params.noisy_rival_unknown_weight) if noisy
                               else params.rival_unknown_weight),
         far_overlay_min_depth_m=sensor_depth_at_sigma_m(noise_model, noise_coeff, params.far_overlay_sigma_m),
+        sparse_overlay_min_depth_m=(sensor_depth_at_sigma_m(noise_model, noise_coeff, params.sparse_overlay_sigma_m)
+                                    if noisy else 0.0),
     )
 
 

@@ -44,6 +44,7 @@ from reloc.matching.selection import (
     gap_bounds,
     order_submap_planes,
     sample_distances,
+    sparse_overlays,
     submap_triplets,
     view_distances,
 )
@@ -828,14 +829,16 @@ class Relocalizer:
                         "be decided on", -1, decision.score, decision.runner_up_score, decision.n_modes)
 
     def _facets(self, used: PlaneSet, vs_ptr, vs_pts, distances: np.ndarray | None = None) -> np.ndarray | None:
-        """Which planes of ``used`` are facets of curved clutter (:func:`reloc.matching.scoring.facet_mask`, from the
-        ``distances`` between their verification samples, computed here when not given), or None with
-        ``facet_max_area_m2`` 0."""
+        """Which planes of ``used`` have their conflicts with the map forgiven when a pose's explained fraction is
+        judged: facets of curved clutter (:func:`reloc.matching.scoring.facet_mask`, from the ``distances`` between
+        their verification samples, computed here when not given) and sparse planes laid over larger ones
+        (:func:`reloc.matching.selection.sparse_overlays`); None when both rules are off."""
+        sparse = sparse_overlays(used, self.params)
         if self.params.facet_max_area_m2 <= 0:
-            return None
+            return sparse if sparse.any() else None
         if distances is None:
             distances = sample_distances(vs_ptr, vs_pts)
-        return facet_mask(used.normals, used.centroids, used.areas, distances, self.params.facet_max_area_m2)
+        return facet_mask(used.normals, used.centroids, used.areas, distances, self.params.facet_max_area_m2) | sparse
 
     def _decide(self, hyps, used: PlaneSet, min_matched: int, timings: dict, modes: dict | None = None) -> Decision:
         """The decision over every hypothesis so far; its weights and density times go to ``timings``, its modes to

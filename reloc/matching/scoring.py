@@ -101,11 +101,12 @@ def explains_enough(explained, unknown, state, params: MatchingParams, n_matched
     rivals get the same credit (optimistic rivals) and the density margin still decides. With ``n_matched`` (the
     matched planes, shape of ``explained``) and ``well_matched_planes`` > 0, a pose matching that many planes or more
     also explains enough at ``well_matched_explained_fraction`` (for noisy sensors, see
-    :func:`reloc.matching.params.scaled_to_sensor`). With ``facets`` (S,) (:func:`facet_mask`; the callers pass
-    None when ``facet_max_area_m2`` is 0), ``match`` (the map plane per submap plane, shape of ``state``) and
-    ``areas``, a facet of curved clutter in conflict with the map is left out of the submap, as a plane too small to
-    count is: the fractions are taken of the rest, and it does not spoil "the rest unknown to the map". (Rejection
-    reasons and traces report the verification's fractions, over the whole submap.)
+    :func:`reloc.matching.params.scaled_to_sensor`). With ``facets`` (S,) (:func:`facet_mask`, and a noisy sensor's
+    sparse planes laid over larger ones, :func:`reloc.matching.selection.sparse_overlays`; the callers pass None
+    when both rules are off), ``match`` (the map plane per submap plane, shape of ``state``) and ``areas``, such a
+    plane in conflict with the map is left out of the submap, as a plane too small to count is: the fractions are
+    taken of the rest, and it does not spoil "the rest unknown to the map". (Rejection reasons and traces report the
+    verification's fractions, over the whole submap.)
     """
     explained = np.asarray(explained, dtype=np.float64)
     conflict = None if state is None else in_conflict(state)
@@ -228,8 +229,8 @@ def decide(
     explaining the decision: ``group`` (H,) each hypothesis's mode, ``score`` (G,) the density at each mode (the
     winner's is the decision's score) and ``rival`` (G,) the density each mode has as a rival (with the credit of
     ``optimistic_rivals``; the runner-up is the largest of the modes distinct from the winner). ``facets`` (S,):
-    the submap's facets of curved clutter (:func:`facet_mask`), whose conflicts do not keep a pose from explaining
-    enough to win (:func:`explains_enough`); its density and the rivals' are not changed.
+    the submap's facets of curved clutter (:func:`facet_mask`) and sparse overlays, whose conflicts do not keep a
+    pose from explaining enough to win (:func:`explains_enough`); its density and the rivals' are not changed.
     """
     H = R.shape[0]
     if H == 0:

@@ -2,7 +2,8 @@
 
 - :func:`order_submap_planes`: the incremental input order, representative planes first (the ground, then large
   planes well separated in angle from those already chosen), then the rest by area; a noisy sensor's far planes
-  laid over larger ones (:func:`far_overlays`) are left out.
+  laid over larger ones (:func:`far_overlays`) are left out. Nearer, a sparse plane so laid (:func:`sparse_overlays`)
+  stays, its conflicts with the map forgiven when a pose's explained fraction is judged.
 - :func:`submap_triplets`: triplets of submap planes inside the orthogonality window with the ground constraint
   (structural mode), or any non-degenerate triplet (the paper's VR-NG).
 - :func:`candidate_triplets`: for each submap triplet, the map triplets agreeing with it (pairwise angles within the
@@ -23,8 +24,8 @@ from reloc.matching.index import MapIndex, horizontal_facing
 from reloc.matching.params import MatchingParams
 from reloc.planeset import PlaneSet
 
-__all__ = ["order_submap_planes", "far_overlays", "view_distances", "submap_triplets", "gap_bounds", "sample_distances",
-           "candidate_triplets"]
+__all__ = ["order_submap_planes", "far_overlays", "sparse_overlays", "view_distances", "submap_triplets", "gap_bounds",
+           "sample_distances", "candidate_triplets"]
 
 
 # A far plane over a larger one: normals 3-25 deg apart (closer ones are the fusion's to join, or a door in its
@@ -53,25 +54,50 @@ def far_overlays(planes: PlaneSet, params: MatchingParams) -> np.ndarray:
     lost views, traced"). Such a plane is in conflict with the map at the true pose, or unknown to it where a rival
     is credited for it; the larger plane it lies over holds the surface's evidence. Each plane is judged against
     every larger plane of the submap, left out or not, so the answer does not depend on the planes' order."""
+    if params.far_overlay_sigma_m <= 0 or params.far_overlay_min_depth_m <= 0:
+        return np.zeros(len(planes), dtype=bool)
+    return _laid_over(planes, view_distances(planes) >= params.far_overlay_min_depth_m)
+
+
+def sparse_overlays(planes: PlaneSet, params: MatchingParams) -> np.ndarray:
+    """(N,) bool: the planes whose conflicts with the map should not keep a pose from explaining enough. A plane at
+    least ``params.sparse_overlay_min_depth_m`` from every camera of its window (where the sensor's noise reaches
+    ``sparse_overlay_sigma_m``; 0 = none) that lies over a larger plane of the submap as :func:`far_overlays` says,
+    with at most ``sparse_overlay_max_density`` of that plane's points per m^2. The two lie at about the same
+    distance, so the share is about that of the window's frames that saw the plane on its own; in the others its
+    points went to the larger plane. A stereo camera's apartment wall at 3-4 m came out beside planes of 2-4 m^2
+    turned 8-16 deg off it, with 2-7 % of its points per m^2, in conflict with the map at the true pose. Left out
+    of the submap they would no longer tell a rival apart either (docs/BENCHMARKS.md, "A sparse plane laid over a
+    larger one"), so they stay, as facets of curved clutter do (:func:`reloc.matching.scoring.explains_enough`)."""
+    if params.sparse_overlay_sigma_m <= 0 or params.sparse_overlay_min_depth_m <= 0 or \
+            params.sparse_overlay_max_density <= 0:
+        return np.zeros(len(planes), dtype=bool)
+    return _laid_over(planes, view_distances(planes) >= params.sparse_overlay_min_depth_m,
+                      params.sparse_overlay_max_density)
+
+
+def _laid_over(planes: PlaneSet, candidates: np.ndarray, max_density: float = 0.0) -> np.ndarray:
+    """(N,) bool: which ``candidates`` (N,) lie over a larger plane of ``planes`` (``OVERLAY_*``), with at most
+    ``max_density`` of its points per m^2 when that is above 0."""
     n = len(planes)
     out = np.zeros(n, dtype=bool)
-    if n < 2 or params.far_overlay_sigma_m <= 0 or params.far_overlay_min_depth_m <= 0:
-        return out
-    far = np.flatnonzero(view_distances(planes) >= params.far_overlay_min_depth_m)
-    if len(far) == 0:
+    if n < 2 or not np.any(candidates):
         return out
     from reloc.mapping.fusion import fraction_touching, voxel_keys
 
     cos_lo, cos_hi = math.cos(OVERLAY_MAX_ANGLE_RAD), math.cos(OVERLAY_MIN_ANGLE_RAD)
     areas = planes.areas
+    density = planes.counts / np.maximum(areas, 1e-12)
     keys: dict[int, np.ndarray] = {}
-    for j in far:
+    for j in np.flatnonzero(candidates):
         pts_j = planes.samples_of(int(j))
         if len(pts_j) == 0:
             continue
         for i in np.flatnonzero(areas > areas[j]):
             c = float(planes.normals[i] @ planes.normals[j])
             if not cos_lo <= c <= cos_hi:
+                continue
+            if max_density > 0 and density[j] > max_density * density[i]:
                 continue
             if np.median(np.abs(pts_j @ planes.normals[i] + planes.offsets[i])) > OVERLAY_MAX_OFFSET_M:
                 continue
