@@ -59,7 +59,7 @@ def paper_settings(params):
     additions: no free space, explained fraction, direction support, twin probe, decision over refined poses, lower
     projection share or wider refinement angle for noisy sensors, fallback refinement angle, refinement at the
     planes' centroids, conflict tests, facets left out of the explained fraction, stronger rivals among the planes
-    not fed, or far and sparse planes laid over larger ones left out)."""
+    not fed, far and sparse planes laid over larger ones left out, or far planes' conflicts forgiven)."""
     return replace(
         params, max_sphere_gap_m=1.0, gap_tolerance_m=1e3, extent_tolerance_m=1e3, min_explained_fraction=0.0,
         min_explained_known_fraction=0.0, facet_max_area_m2=0.0, well_matched_planes=0, noisy_well_matched_planes=0,
@@ -71,6 +71,7 @@ def paper_settings(params):
         final_max_angle_rad=params.match_max_angle_rad, final_max_offset_m=params.match_max_offset_m,
         min_ambiguity_ratio=1.0, probe_twins=False, tight_decision=False, refine_at_centroids=False,
         stronger_rival_below_explained=0.0, far_overlay_sigma_m=0.0, sparse_overlay_sigma_m=0.0,
+        far_conflict_min_planes=0,
     )
 
 

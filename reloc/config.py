@@ -438,6 +438,13 @@ class EvaluationConfig(_Section):
         "judging whether a pose explains enough of the submap: extraction cuts a curved surface into facets that "
         "follow the viewpoint, so the map holds other facets of it. Rivals are judged as before. 0 turns this off.",
     )
+    far_conflict_min_planes: int = Field(
+        6, ge=0,
+        description="A noisy sensor's planes where its noise reaches matching.far_overlay_sigma_m (5 m for an OAK-D "
+        "class stereo camera), in conflict with the map, are left out in the same way for a pose that matches this "
+        "many planes or more: one more than scene uniqueness needs, as the far planes that told a half-turned twin "
+        "apart are no longer held against it (0 = never).",
+    )
     refine_iterations: int = Field(2, ge=0, le=10, description="Least-squares refinements of the winning pose.")
     refine_at_centroids: bool = Field(
         True,

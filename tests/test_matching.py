@@ -494,6 +494,52 @@ def test_a_sparse_plane_over_a_larger_one_does_not_keep_the_true_pose_from_expla
         assert not res.relocalized and res.reason.startswith("no pose explains enough: best 7 planes, 0.92")
 
 
+def test_a_noisy_sensors_far_plane_in_conflict_is_forgiven_at_a_pose_matching_six_planes():
+    # In the camera's frame (z forward, y down): a room of 5 x 7 x 3 m whose front wall is 6 m ahead, a shelf and a
+    # cabinet. The submap's piece of the front wall (2 x 1.5 m) lies 20 cm in front of the map's wall: a noisy
+    # sensor's far plane, in conflict with the map at the true pose. Under a strict explained fraction (0.95) it
+    # keeps the pose out (0.93 explained) unless the pose matches 6 planes or more without it.
+    from reloc.evaluation.synthetic import Rect, planes_from_points
+
+    room = [
+        Rect((0.0, 1.5, 2.5), (0.0, -1.0, 0.0), (1.0, 0.0, 0.0), 2.5, 3.5),  # floor
+        Rect((0.0, -1.5, 2.5), (0.0, 1.0, 0.0), (1.0, 0.0, 0.0), 2.5, 3.5),  # ceiling
+        Rect((-2.5, 0.0, 2.5), (1.0, 0.0, 0.0), (0.0, 0.0, 1.0), 3.5, 1.5),  # side walls
+        Rect((2.5, 0.0, 2.5), (-1.0, 0.0, 0.0), (0.0, 0.0, 1.0), 3.5, 1.5),
+        Rect((1.4, 0.5, 3.5), (0.0, 0.0, -1.0), (1.0, 0.0, 0.0), 1.0, 1.0),  # shelf front
+        Rect((-1.9, 0.9, 2.5), (0.0, 0.0, -1.0), (1.0, 0.0, 0.0), 0.5, 0.6),  # cabinet front and top
+        Rect((-1.9, 0.3, 2.8), (0.0, -1.0, 0.0), (1.0, 0.0, 0.0), 0.5, 0.3),
+    ]
+    front = Rect((0.0, 0.0, 6.0), (0.0, 0.0, -1.0), (1.0, 0.0, 0.0), 2.5, 1.5)
+    piece = Rect((-1.0, -0.5, 5.8), (0.0, 0.0, -1.0), (1.0, 0.0, 0.0), 1.0, 0.75)
+
+    def planes(rects, frame):
+        normals = np.array([r.normal for r in rects])
+        offsets = -np.sum(normals * np.array([r.center for r in rects]), axis=1)
+        return planes_from_points([r.grid(0.1) for r in rects], normals, offsets, spacing=0.1, frame=frame,
+                                  gravity=np.array([0.0, 1.0, 0.0]))
+
+    world = planes(room + [front], "map")
+    strict = dict(min_explained_fraction=0.95, min_explained_known_fraction=0.0)
+    stereo = scaled_to_sensor(MatchingParams(), "stereo", 0.0024187).with_(**strict)
+    assert stereo.far_conflict_min_planes == 6
+    assert stereo.far_conflict_min_depth_m == pytest.approx(4.98, abs=0.01)  # as the far overlays
+    kinect = scaled_to_sensor(MatchingParams(), "kinect", 1.425e-3).with_(**strict)
+    assert kinect.far_conflict_min_depth_m == 0.0  # not a noisy sensor
+    for kept in (7, 6, 5):  # the cabinet's top, then its front too, left out of the submap
+        sub = planes(room[:kept] + [piece], "cam")
+        for params, answered in ((stereo, kept >= 6), (stereo.with_(far_conflict_min_planes=0), False),
+                                 (kinect, False)):
+            res = Relocalizer(world, params).locate(sub)
+            assert res.relocalized == answered, (kept, params.far_conflict_min_planes, res.reason)
+            assert Relocalizer(world, params).confirm(sub, np.eye(4)).relocalized == answered
+            if answered:
+                assert res.n_matched == kept and np.abs(res.T_map_cam - np.eye(4)).max() < 1e-6
+                assert res.explained_fraction == pytest.approx(0.93, abs=0.01)
+            else:
+                assert res.reason.startswith(f"no pose explains enough: best {kept} planes, 0.93")
+
+
 # --- relocalization ------------------------------------------------------------------------------------------------
 
 

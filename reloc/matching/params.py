@@ -39,6 +39,11 @@ class MatchingParams:
     sparse_overlay_sigma_m: float = 0.015
     sparse_overlay_max_density: float = 0.1
     sparse_overlay_min_depth_m: float = 0.0
+    # A noisy sensor's planes from far_overlay_min_depth_m on (far_conflict_min_depth_m, set by scaled_to_sensor; 0:
+    # none) in conflict with the map do not keep a pose matching far_conflict_min_planes or more (0: never) from
+    # explaining enough (scoring.explains_enough).
+    far_conflict_min_planes: int = 6
+    far_conflict_min_depth_m: float = 0.0
     # Triplet selection.
     structural_constraints: bool = True
     ground_tolerance_rad: float = math.radians(15.0)
@@ -254,6 +259,7 @@ class MatchingParams:
             min_explained_known_fraction=e.min_explained_known_fraction,
             known_conflict_min_area_m2=e.known_conflict_min_area_m2,
             facet_max_area_m2=e.facet_max_area_m2,
+            far_conflict_min_planes=e.far_conflict_min_planes,
             min_competitor_fraction=e.min_competitor_fraction,
             min_counted_area_m2=e.min_counted_area_m2,
             free_space=e.free_space,
@@ -411,6 +417,8 @@ def scaled_to_sensor(params: MatchingParams, noise_model: str, noise_coeff: floa
         far_overlay_min_depth_m=sensor_depth_at_sigma_m(noise_model, noise_coeff, params.far_overlay_sigma_m),
         sparse_overlay_min_depth_m=(sensor_depth_at_sigma_m(noise_model, noise_coeff, params.sparse_overlay_sigma_m)
                                     if noisy else 0.0),
+        far_conflict_min_depth_m=(sensor_depth_at_sigma_m(noise_model, noise_coeff, params.far_overlay_sigma_m)
+                                  if noisy else 0.0),
     )
 
 

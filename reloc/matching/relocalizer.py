@@ -29,6 +29,8 @@ from reloc.matching.footprint import MapFootprint
 from reloc.matching.index import SURFACE_CELL_M, MapIndex, build_index, horizontal_facing, with_dense_extents
 from reloc.matching.params import MatchingParams
 from reloc.matching.scoring import (
+    FORGIVEN,
+    FORGIVEN_WELL_MATCHED,
     Decision,
     decide,
     distinct_from,
@@ -830,15 +832,23 @@ class Relocalizer:
 
     def _facets(self, used: PlaneSet, vs_ptr, vs_pts, distances: np.ndarray | None = None) -> np.ndarray | None:
         """Which planes of ``used`` have their conflicts with the map forgiven when a pose's explained fraction is
-        judged: facets of curved clutter (:func:`reloc.matching.scoring.facet_mask`, from the ``distances`` between
-        their verification samples, computed here when not given) and sparse planes laid over larger ones
-        (:func:`reloc.matching.selection.sparse_overlays`); None when both rules are off."""
-        sparse = sparse_overlays(used, self.params)
-        if self.params.facet_max_area_m2 <= 0:
-            return sparse if sparse.any() else None
-        if distances is None:
-            distances = sample_distances(vs_ptr, vs_pts)
-        return facet_mask(used.normals, used.centroids, used.areas, distances, self.params.facet_max_area_m2) | sparse
+        judged, coded as :func:`reloc.matching.scoring.explains_enough` reads them: facets of curved clutter
+        (:func:`reloc.matching.scoring.facet_mask`, from the ``distances`` between their verification samples,
+        computed here when not given) and sparse planes laid over larger ones
+        (:func:`reloc.matching.selection.sparse_overlays`) at every pose; a noisy sensor's far planes (from
+        ``far_conflict_min_depth_m``) at the poses matching ``far_conflict_min_planes`` or more. None when no rule
+        marks a plane."""
+        p = self.params
+        codes = np.zeros(len(used), dtype=np.int8)
+        if p.far_conflict_min_planes > 0 and p.far_conflict_min_depth_m > 0:
+            codes[view_distances(used) >= p.far_conflict_min_depth_m] = FORGIVEN_WELL_MATCHED
+        forgiven = sparse_overlays(used, p)
+        if p.facet_max_area_m2 > 0:
+            if distances is None:
+                distances = sample_distances(vs_ptr, vs_pts)
+            forgiven |= facet_mask(used.normals, used.centroids, used.areas, distances, p.facet_max_area_m2)
+        codes[forgiven] = FORGIVEN
+        return codes if codes.any() else None
 
     def _decide(self, hyps, used: PlaneSet, min_matched: int, timings: dict, modes: dict | None = None) -> Decision:
         """The decision over every hypothesis so far; its weights and density times go to ``timings``, its modes to
@@ -1186,8 +1196,8 @@ class Relocalizer:
 
     def _holds(self, v: Verification, min_matched: int, areas: np.ndarray, facets: np.ndarray | None) -> bool:
         """Whether the single pose verified in ``v`` passes, explains enough and matches ``min_matched`` planes
-        (``areas``: of the submap planes ``v`` judged; ``facets``: which of them are facets of curved clutter, see
-        :func:`reloc.matching.scoring.explains_enough`)."""
+        (``areas``: of the submap planes ``v`` judged; ``facets``: which of them have their conflicts forgiven, see
+        :meth:`_facets`)."""
         return bool(v.passed[0] and explains_enough(v.explained[0], v.unknown[0], v.state[0], self.params,
                                                     v.n_matched[0], areas, v.match[0], facets)
                     and v.n_matched[0] >= min_matched)

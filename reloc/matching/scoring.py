@@ -24,7 +24,7 @@ from reloc.matching.params import MatchingParams
 
 __all__ = [
     "Decision", "frequency_weights", "pose_density", "decide", "distinct_from", "explains_enough", "facet_mask",
-    "in_conflict", "largest_area", "match_quality",
+    "in_conflict", "largest_area", "match_quality", "FORGIVEN", "FORGIVEN_WELL_MATCHED",
 ]
 
 #: Two planes that touch (verification samples within FACET_TOUCH_M) with normals FACET_MIN_ANGLE_DEG to
@@ -66,6 +66,12 @@ def largest_area(state: np.ndarray, areas: np.ndarray, code: int) -> np.ndarray:
     return np.where(np.asarray(state) == code, np.asarray(areas)[None, :], 0.0).max(axis=1, initial=0.0)
 
 
+#: Codes of the ``facets`` argument of :func:`explains_enough` (0: none): a plane whose conflicts with the map are
+#: forgiven at every pose, and one forgiven only at a pose matching ``far_conflict_min_planes`` planes or more.
+FORGIVEN = 1
+FORGIVEN_WELL_MATCHED = 2
+
+
 def facet_mask(normals: np.ndarray, centroids: np.ndarray, areas: np.ndarray, distances: np.ndarray,
                max_area_m2: float) -> np.ndarray:
     """(S,) bool: the planes under ``max_area_m2`` that are facets of a curved surface seen from outside (a plant
@@ -101,11 +107,13 @@ def explains_enough(explained, unknown, state, params: MatchingParams, n_matched
     rivals get the same credit (optimistic rivals) and the density margin still decides. With ``n_matched`` (the
     matched planes, shape of ``explained``) and ``well_matched_planes`` > 0, a pose matching that many planes or more
     also explains enough at ``well_matched_explained_fraction`` (for noisy sensors, see
-    :func:`reloc.matching.params.scaled_to_sensor`). With ``facets`` (S,) (:func:`facet_mask`, and a noisy sensor's
-    sparse planes laid over larger ones, :func:`reloc.matching.selection.sparse_overlays`; the callers pass None
-    when both rules are off), ``match`` (the map plane per submap plane, shape of ``state``) and ``areas``, such a
-    plane in conflict with the map is left out of the submap, as a plane too small to count is: the fractions are
-    taken of the rest, and it does not spoil "the rest unknown to the map". (Rejection reasons and traces report the
+    :func:`reloc.matching.params.scaled_to_sensor`). With ``facets`` (S,) (0, or :data:`FORGIVEN` (True) for the
+    facets of curved clutter of :func:`facet_mask` and a noisy sensor's sparse planes laid over larger ones,
+    :func:`reloc.matching.selection.sparse_overlays`, or :data:`FORGIVEN_WELL_MATCHED` for a noisy sensor's far
+    planes, forgiven only at poses matching ``far_conflict_min_planes`` or more; the callers pass None when no rule
+    marks a plane), ``match`` (the map plane per submap plane, shape of ``state``) and ``areas``, such a plane in
+    conflict with the map is left out of the submap, as a plane too small to count is: the fractions are taken of the
+    rest, and it does not spoil "the rest unknown to the map". (Rejection reasons and traces report the
     verification's fractions, over the whole submap.)
     """
     explained = np.asarray(explained, dtype=np.float64)
@@ -117,7 +125,13 @@ def explains_enough(explained, unknown, state, params: MatchingParams, n_matched
         a = np.asarray(areas, dtype=np.float64)
         w = np.sqrt(a)
         counts = (a >= params.min_counted_area_m2) | (np.asarray(match) >= 0)
-        forgiven = conflict & np.asarray(facets)
+        codes = np.asarray(facets).astype(np.int8)
+        forgiven = codes == FORGIVEN
+        if params.far_conflict_min_planes > 0 and n_matched is not None:
+            # A noisy sensor's far planes: forgiven at the poses that match enough planes without them.
+            well = np.asarray(n_matched)[..., None] >= params.far_conflict_min_planes
+            forgiven = forgiven | ((codes == FORGIVEN_WELL_MATCHED) & well)
+        forgiven = conflict & forgiven
         total = np.sum(np.where(counts, w, 0.0), axis=-1)
         rest = total - np.sum(np.where(forgiven, w, 0.0), axis=-1)
         scale = np.where(rest > 0, total / np.where(rest > 0, rest, 1.0), 1.0)
@@ -229,8 +243,9 @@ def decide(
     explaining the decision: ``group`` (H,) each hypothesis's mode, ``score`` (G,) the density at each mode (the
     winner's is the decision's score) and ``rival`` (G,) the density each mode has as a rival (with the credit of
     ``optimistic_rivals``; the runner-up is the largest of the modes distinct from the winner). ``facets`` (S,):
-    the submap's facets of curved clutter (:func:`facet_mask`) and sparse overlays, whose conflicts do not keep a
-    pose from explaining enough to win (:func:`explains_enough`); its density and the rivals' are not changed.
+    the submap's facets of curved clutter (:func:`facet_mask`), sparse overlays and far planes, coded as
+    :func:`explains_enough` reads them, whose conflicts do not keep a pose from explaining enough to win; its
+    density and the rivals' are not changed.
     """
     H = R.shape[0]
     if H == 0:
