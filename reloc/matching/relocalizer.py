@@ -185,10 +185,10 @@ class _Hypotheses:
 
     _FIELDS = ("match", "proj", "over", "state", "free_frac", "n_matched", "explained", "unknown")
 
-    def __init__(self, S: int, facets: np.ndarray | None = None):
-        # Per submap plane: a facet of curved clutter (scoring.facet_mask), whose conflicts with the map do not keep
-        # a pose from explaining enough; None when facet_max_area_m2 is 0.
-        self.facets = facets
+    def __init__(self, S: int, forgiven: np.ndarray | None = None):
+        # Per submap plane: whether its conflicts with the map are forgiven when a pose's explained fraction is
+        # judged, coded as scoring.explains_enough reads it (Relocalizer._forgiven); None when no plane is.
+        self.forgiven = forgiven
         self.R = np.zeros((0, 3, 3))
         self.t = np.zeros((0, 3))
         self.cand = np.zeros((0, 6), np.int32)
@@ -668,7 +668,7 @@ class Relocalizer:
                      self._mode_rows(hyps, used, vs_ptr, vs_pts, np.asarray(new, np.int64), several))
         m = rows.take([(int(a), several) for a in leaders])
         v = Verification(**{name: m[name] for name in _ModeRows.VERIFIED}, evaluated=0)
-        out = _Hypotheses(len(used), hyps.facets)
+        out = _Hypotheses(len(used), hyps.forgiven)
         out.add(m["R"], m["t"], hyps.cand[leaders], v)
         out.leader = leaders[v.passed]
         out.unrefined = leaders[~m["refined"]]
@@ -830,7 +830,7 @@ class Relocalizer:
                         f"{hyps.explained[a]:.2f} of the submap, as well as the winner, has no least-squares pose to "
                         "be decided on", -1, decision.score, decision.runner_up_score, decision.n_modes)
 
-    def _facets(self, used: PlaneSet, vs_ptr, vs_pts, distances: np.ndarray | None = None) -> np.ndarray | None:
+    def _forgiven(self, used: PlaneSet, vs_ptr, vs_pts, distances: np.ndarray | None = None) -> np.ndarray | None:
         """Which planes of ``used`` have their conflicts with the map forgiven when a pose's explained fraction is
         judged, coded as :func:`reloc.matching.scoring.explains_enough` reads them: facets of curved clutter
         (:func:`reloc.matching.scoring.facet_mask`, from the ``distances`` between their verification samples,
@@ -857,7 +857,7 @@ class Relocalizer:
         decision = decide(hyps.R, hyps.t, hyps.match, hyps.over, hyps.n_matched, hyps.explained, self.params,
                           min_matched=min_matched, state=hyps.state, areas=used.areas, free_frac=hyps.free_frac,
                           unknown=hyps.unknown, blocked=hyps.blocked(), hidden_frac=hyps.hidden_frac,
-                          optimistic=self._map_knows_free_space, timings_ms=part, modes=modes, facets=hyps.facets)
+                          optimistic=self._map_knows_free_space, timings_ms=part, modes=modes, forgiven=hyps.forgiven)
         timings["decide.weights"] += part.get("weights", 0.0)
         timings["decide.density"] += part.get("density", 0.0)
         return decision
@@ -940,7 +940,7 @@ class Relocalizer:
         v = replace(v, passed=v.passed & (v.n_matched > hyps.n_matched.max(initial=0)))
         if not v.passed.any():
             return decision
-        extra = _Hypotheses(len(used), hyps.facets)
+        extra = _Hypotheses(len(used), hyps.forgiven)
         extra.add(R, t, cand, v)
         tight = self._tightened(extra, used, vs_ptr, vs_pts)
         if not len(tight):
@@ -1006,7 +1006,7 @@ class Relocalizer:
             return finish(_rejected(
                 too_few_planes_reason(S, len(self.index), min_matched), counts, timings
             ))
-        hyps = _Hypotheses(S, self._facets(used, vs_ptr, vs_pts, distances))
+        hyps = _Hypotheses(S, self._forgiven(used, vs_ptr, vs_pts, distances))
         coarse = judged = hyps
         decision = Decision(False, "no hypothesis passed verification", -1, 0.0, 0.0, 0)
         rounds = range(min(p.initial_planes, S), S + 1) if p.incremental else [S]
@@ -1090,7 +1090,7 @@ class Relocalizer:
                 break
             v = self.verify(used, vs_ptr, vs_pts, T_new[None, :3, :3], T_new[None, :3, 3], cand_row,
                             require_triplet=False)
-            if not self._holds(v, min_matched, used.areas, hyps.facets):
+            if not self._holds(v, min_matched, used.areas, hyps.forgiven):
                 why = f"{int(v.n_matched[0])} planes, {v.explained[0]:.2f} of the submap at the refined pose"
                 break
             T, match_row, proj_row, explained = T_new, v.match[0], v.proj[0], float(v.explained[0])
@@ -1106,7 +1106,7 @@ class Relocalizer:
         v = self.verify(used, vs_ptr, vs_pts, T[None, :3, :3], T[None, :3, 3], cand_row, require_triplet=False,
                         tight=True)
         timings["refine"] = (time.perf_counter() - t0) * 1e3
-        if not self._holds(v, min_matched, used.areas, hyps.facets):
+        if not self._holds(v, min_matched, used.areas, hyps.forgiven):
             return _rejected(f"pose does not hold at tight tolerances: {int(v.n_matched[0])} planes, "
                              f"{v.explained[0]:.2f} of the submap", counts, timings)
         match_row, explained = v.match[0], float(v.explained[0])
@@ -1194,12 +1194,12 @@ class Relocalizer:
         b = int(np.argmax(n))
         return float(dx[b]), int(n[b])
 
-    def _holds(self, v: Verification, min_matched: int, areas: np.ndarray, facets: np.ndarray | None) -> bool:
+    def _holds(self, v: Verification, min_matched: int, areas: np.ndarray, forgiven: np.ndarray | None) -> bool:
         """Whether the single pose verified in ``v`` passes, explains enough and matches ``min_matched`` planes
-        (``areas``: of the submap planes ``v`` judged; ``facets``: which of them have their conflicts forgiven, see
-        :meth:`_facets`)."""
+        (``areas``: of the submap planes ``v`` judged; ``forgiven``: which of them have their conflicts forgiven,
+        see :meth:`_forgiven`)."""
         return bool(v.passed[0] and explains_enough(v.explained[0], v.unknown[0], v.state[0], self.params,
-                                                    v.n_matched[0], areas, v.match[0], facets)
+                                                    v.n_matched[0], areas, v.match[0], forgiven)
                     and v.n_matched[0] >= min_matched)
 
     def confirm(self, submap: PlaneSet, T_map_cam) -> RelocResult:
@@ -1248,7 +1248,7 @@ class Relocalizer:
                 f"pose does not verify: {int(v.n_matched[0])} planes matched{in_free}, {v.explained[0]:.2f} of the "
                 "submap explained", counts, timings,
             ))
-        hyps = _Hypotheses(S, self._facets(used, vs_ptr, vs_pts))
+        hyps = _Hypotheses(S, self._forgiven(used, vs_ptr, vs_pts))
         hyps.add(R, t, cand, v)
         t0 = time.perf_counter()
         decision, judged = self._judge(hyps, used, vs_ptr, vs_pts, min_matched, timings)

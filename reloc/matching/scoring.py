@@ -66,7 +66,7 @@ def largest_area(state: np.ndarray, areas: np.ndarray, code: int) -> np.ndarray:
     return np.where(np.asarray(state) == code, np.asarray(areas)[None, :], 0.0).max(axis=1, initial=0.0)
 
 
-#: Codes of the ``facets`` argument of :func:`explains_enough` (0: none): a plane whose conflicts with the map are
+#: Codes of the ``forgiven`` argument of :func:`explains_enough` (0: none): a plane whose conflicts with the map are
 #: forgiven at every pose, and one forgiven only at a pose matching ``far_conflict_min_planes`` planes or more.
 FORGIVEN = 1
 FORGIVEN_WELL_MATCHED = 2
@@ -95,7 +95,7 @@ def facet_mask(normals: np.ndarray, centroids: np.ndarray, areas: np.ndarray, di
 
 
 def explains_enough(explained, unknown, state, params: MatchingParams, n_matched=None, areas=None, match=None,
-                    facets=None):
+                    forgiven=None):
     """Whether each pose explains enough of the submap to be accepted (bool, shape of ``explained``).
 
     It explains ``min_explained_fraction``; or, with ``min_explained_known_fraction`` > 0, it explains at least that
@@ -107,7 +107,7 @@ def explains_enough(explained, unknown, state, params: MatchingParams, n_matched
     rivals get the same credit (optimistic rivals) and the density margin still decides. With ``n_matched`` (the
     matched planes, shape of ``explained``) and ``well_matched_planes`` > 0, a pose matching that many planes or more
     also explains enough at ``well_matched_explained_fraction`` (for noisy sensors, see
-    :func:`reloc.matching.params.scaled_to_sensor`). With ``facets`` (S,) (0, or :data:`FORGIVEN` (True) for the
+    :func:`reloc.matching.params.scaled_to_sensor`). With ``forgiven`` (S,) (0, or :data:`FORGIVEN` (True) for the
     facets of curved clutter of :func:`facet_mask` and a noisy sensor's sparse planes laid over larger ones,
     :func:`reloc.matching.selection.sparse_overlays`, or :data:`FORGIVEN_WELL_MATCHED` for a noisy sensor's far
     planes, forgiven only at poses matching ``far_conflict_min_planes`` or more; the callers pass None when no rule
@@ -118,22 +118,22 @@ def explains_enough(explained, unknown, state, params: MatchingParams, n_matched
     """
     explained = np.asarray(explained, dtype=np.float64)
     conflict = None if state is None else in_conflict(state)
-    forgiven = None
-    if facets is not None and match is not None and conflict is not None and areas is not None and np.any(facets):
+    left_out = None
+    if forgiven is not None and match is not None and conflict is not None and areas is not None and np.any(forgiven):
         # The verification's weights (square roots of the areas) over the planes that count: those of at least
         # min_counted_area_m2, and smaller ones that matched.
         a = np.asarray(areas, dtype=np.float64)
         w = np.sqrt(a)
         counts = (a >= params.min_counted_area_m2) | (np.asarray(match) >= 0)
-        codes = np.asarray(facets).astype(np.int8)
-        forgiven = codes == FORGIVEN
+        codes = np.asarray(forgiven).astype(np.int8)
+        left_out = codes == FORGIVEN
         if params.far_conflict_min_planes > 0 and n_matched is not None:
             # A noisy sensor's far planes: forgiven at the poses that match enough planes without them.
             well = np.asarray(n_matched)[..., None] >= params.far_conflict_min_planes
-            forgiven = forgiven | ((codes == FORGIVEN_WELL_MATCHED) & well)
-        forgiven = conflict & forgiven
+            left_out = left_out | ((codes == FORGIVEN_WELL_MATCHED) & well)
+        left_out = conflict & left_out
         total = np.sum(np.where(counts, w, 0.0), axis=-1)
-        rest = total - np.sum(np.where(forgiven, w, 0.0), axis=-1)
+        rest = total - np.sum(np.where(left_out, w, 0.0), axis=-1)
         scale = np.where(rest > 0, total / np.where(rest > 0, rest, 1.0), 1.0)
         explained = explained * scale
         unknown = None if unknown is None else np.asarray(unknown) * scale
@@ -142,7 +142,7 @@ def explains_enough(explained, unknown, state, params: MatchingParams, n_matched
         ok |= (np.asarray(n_matched) >= params.well_matched_planes) & (
             explained >= params.well_matched_explained_fraction)
     if params.min_explained_known_fraction > 0 and unknown is not None and state is not None:
-        bad = conflict if forgiven is None else conflict & ~forgiven
+        bad = conflict if left_out is None else conflict & ~left_out
         if params.known_conflict_min_area_m2 > 0 and areas is not None:
             bad = bad & (np.asarray(areas) >= params.known_conflict_min_area_m2)
         clean = ~np.any(bad, axis=-1)
@@ -219,7 +219,7 @@ def decide(
     optimistic: bool = True,
     timings_ms: dict | None = None,
     modes: dict | None = None,
-    facets: np.ndarray | None = None,
+    forgiven: np.ndarray | None = None,
 ) -> Decision:
     """Pick the best pose among verified hypotheses, or reject with a reason.
 
@@ -242,7 +242,7 @@ def decide(
     density (``"density"``, Eq. 14) are added to it. ``modes``: when given, it receives the poses' modes, for
     explaining the decision: ``group`` (H,) each hypothesis's mode, ``score`` (G,) the density at each mode (the
     winner's is the decision's score) and ``rival`` (G,) the density each mode has as a rival (with the credit of
-    ``optimistic_rivals``; the runner-up is the largest of the modes distinct from the winner). ``facets`` (S,):
+    ``optimistic_rivals``; the runner-up is the largest of the modes distinct from the winner). ``forgiven`` (S,):
     the submap's facets of curved clutter (:func:`facet_mask`), sparse overlays and far planes, coded as
     :func:`explains_enough` reads them, whose conflicts do not keep a pose from explaining enough to win; its
     density and the rivals' are not changed.
@@ -264,7 +264,7 @@ def decide(
     t2 = time.perf_counter()
     need = params.min_matched_planes if min_matched is None else min_matched
     eligible = (n_matched >= need) & explains_enough(explained, unknown, state, params, n_matched, areas, match,
-                                                     facets)
+                                                     forgiven)
     best = g_best = -1
     if eligible.any():
         mode_ok = np.bincount(group, weights=eligible.astype(float), minlength=n_modes) > 0

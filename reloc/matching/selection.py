@@ -65,10 +65,11 @@ def sparse_overlays(planes: PlaneSet, params: MatchingParams) -> np.ndarray:
     ``sparse_overlay_sigma_m``; 0 = none) that lies over a larger plane of the submap as :func:`far_overlays` says,
     with at most ``sparse_overlay_max_density`` of that plane's points per m^2. The two lie at about the same
     distance, so the share is about that of the window's frames that saw the plane on its own; in the others its
-    points went to the larger plane. A stereo camera's apartment wall at 3-4 m came out beside planes of 2-4 m^2
-    turned 8-16 deg off it, with 2-7 % of its points per m^2, in conflict with the map at the true pose. Left out
-    of the submap they would no longer tell a rival apart either (docs/BENCHMARKS.md, "A sparse plane laid over a
-    larger one"), so they stay, as facets of curved clutter do (:func:`reloc.matching.scoring.explains_enough`)."""
+    points went to the larger plane. A stereo camera's apartment wall at 3-4.2 m came out beside planes of 0.6-4.1
+    m^2 turned 8-16 deg off it, with 1.6-7.3 % of its points per m^2, in conflict with the map at the true pose.
+    Left out of the submap they would no longer tell a rival apart either (docs/BENCHMARKS.md, "A sparse plane laid
+    over a larger one"), so they stay, as facets of curved clutter do
+    (:func:`reloc.matching.scoring.explains_enough`)."""
     if params.sparse_overlay_sigma_m <= 0 or params.sparse_overlay_min_depth_m <= 0 or \
             params.sparse_overlay_max_density <= 0:
         return np.zeros(len(planes), dtype=bool)
