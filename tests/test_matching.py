@@ -446,7 +446,7 @@ def test_a_sparse_plane_over_a_larger_one_does_not_keep_the_true_pose_from_expla
     from dataclasses import replace
 
     from reloc.evaluation.synthetic import Rect, planes_from_points
-    from reloc.matching.selection import sparse_overlays
+    from reloc.matching.selection import sparse_overlays, view_distances
 
     a = math.radians(10.0)
     room = [
@@ -477,6 +477,12 @@ def test_a_sparse_plane_over_a_larger_one_does_not_keep_the_true_pose_from_expla
     expected = [False] * 7 + [True]
     assert sparse_overlays(sub, stereo).tolist() == expected
     assert sparse_overlays(sub.subset(np.arange(8)[::-1]), stereo).tolist() == expected[::-1]
+    # The depths a caller already has give the same answer (the turned plane's centroid is (1, 0, 4) m from the
+    # camera); with every plane nearer than 2.49 m, none is a sparse overlay.
+    depths = view_distances(sub)
+    assert depths[-1] == pytest.approx(math.hypot(1.0, 4.0), abs=1e-6)
+    assert sparse_overlays(sub, stereo, depths).tolist() == expected
+    assert not sparse_overlays(sub, stereo, np.full(8, 2.4)).any()
     assert not far_overlays(sub, stereo).any()  # 4 m is not far: it stays in the submap
     for params, planes_ in ((stereo, planes(room + [over], "cam", 0.2)),  # dense enough: a surface of its own
                             (scaled_to_sensor(MatchingParams(), "kinect", 1.425e-3), sub),

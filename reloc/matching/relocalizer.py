@@ -840,9 +840,11 @@ class Relocalizer:
         marks a plane."""
         p = self.params
         codes = np.zeros(len(used), dtype=np.int8)
+        depths = None
         if p.far_conflict_min_planes > 0 and p.far_conflict_min_depth_m > 0:
-            codes[view_distances(used) >= p.far_conflict_min_depth_m] = FORGIVEN_WELL_MATCHED
-        forgiven = sparse_overlays(used, p)
+            depths = view_distances(used)
+            codes[depths >= p.far_conflict_min_depth_m] = FORGIVEN_WELL_MATCHED
+        forgiven = sparse_overlays(used, p, depths)
         if p.facet_max_area_m2 > 0:
             if distances is None:
                 distances = sample_distances(vs_ptr, vs_pts)

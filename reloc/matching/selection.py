@@ -59,7 +59,7 @@ def far_overlays(planes: PlaneSet, params: MatchingParams) -> np.ndarray:
     return _laid_over(planes, view_distances(planes) >= params.far_overlay_min_depth_m)
 
 
-def sparse_overlays(planes: PlaneSet, params: MatchingParams) -> np.ndarray:
+def sparse_overlays(planes: PlaneSet, params: MatchingParams, depths: np.ndarray | None = None) -> np.ndarray:
     """(N,) bool: the planes whose conflicts with the map should not keep a pose from explaining enough. A plane at
     least ``params.sparse_overlay_min_depth_m`` from every camera of its window (where the sensor's noise reaches
     ``sparse_overlay_sigma_m``; 0 = none) that lies over a larger plane of the submap as :func:`far_overlays` says,
@@ -69,11 +69,13 @@ def sparse_overlays(planes: PlaneSet, params: MatchingParams) -> np.ndarray:
     m^2 turned 8-16 deg off it, with 1.6-7.3 % of its points per m^2, in conflict with the map at the true pose.
     Left out of the submap they would no longer tell a rival apart either (docs/BENCHMARKS.md, "A sparse plane laid
     over a larger one"), so they stay, as facets of curved clutter do
-    (:func:`reloc.matching.scoring.explains_enough`)."""
+    (:func:`reloc.matching.scoring.explains_enough`). ``depths``: the planes' :func:`view_distances`, worked out
+    here when not given."""
     if params.sparse_overlay_sigma_m <= 0 or params.sparse_overlay_min_depth_m <= 0 or \
             params.sparse_overlay_max_density <= 0:
         return np.zeros(len(planes), dtype=bool)
-    return _laid_over(planes, view_distances(planes) >= params.sparse_overlay_min_depth_m,
+    depths = view_distances(planes) if depths is None else depths
+    return _laid_over(planes, depths >= params.sparse_overlay_min_depth_m,
                       params.sparse_overlay_max_density)
 
 
