@@ -362,7 +362,9 @@ def scaled_to_sensor(params: MatchingParams, noise_model: str, noise_coeff: floa
     ``min_projection_ratio`` lowered to ``noisy_min_projection_ratio``, ``refine_max_angle_rad`` raised to
     ``noisy_refine_max_angle_rad``, ``well_matched_planes`` and ``well_matched_explained_fraction`` set to their
     ``noisy_`` values and ``rival_unknown_weight`` lowered to ``noisy_rival_unknown_weight`` when that noise exceeds
-    ``noisy_sensor_sigma_m``.
+    ``noisy_sensor_sigma_m``. It sets the depths where the noise reaches ``far_overlay_sigma_m``
+    (``far_overlay_min_depth_m``; for a noisy sensor ``far_conflict_min_depth_m`` too) and ``sparse_overlay_sigma_m``
+    (``sparse_overlay_min_depth_m``, a noisy sensor only); 0 where they do not apply.
 
     The projection test (Eq. 10) counts the verification samples of a submap plane within ``projection_inlier_m`` of
     the map plane. At their true poses, the suite's Kinect and ToF pairs have at least 11 of their 12 samples inside
@@ -392,6 +394,9 @@ def scaled_to_sensor(params: MatchingParams, noise_model: str, noise_coeff: floa
     sigma = sensor_sigma_m(noise_model, noise_coeff)
     noisy = sigma > params.noisy_sensor_sigma_m
     first = params.noise_depth_power <= 0
+    # Where the noise reaches far_overlay_sigma_m: far planes laid over larger ones are left out from there, and a
+    # noisy sensor's planes in conflict there are forgiven at a well-matched pose.
+    far_depth = sensor_depth_at_sigma_m(noise_model, noise_coeff, params.far_overlay_sigma_m)
     return replace(
         params,
         noise_depth_power=float(noise_law_code(noise_model)),
@@ -414,11 +419,10 @@ def scaled_to_sensor(params: MatchingParams, noise_model: str, noise_coeff: floa
                                          else params.well_matched_explained_fraction),
         rival_unknown_weight=(min(params.rival_unknown_weight, params.noisy_rival_unknown_weight) if noisy
                               else params.rival_unknown_weight),
-        far_overlay_min_depth_m=sensor_depth_at_sigma_m(noise_model, noise_coeff, params.far_overlay_sigma_m),
+        far_overlay_min_depth_m=far_depth,
         sparse_overlay_min_depth_m=(sensor_depth_at_sigma_m(noise_model, noise_coeff, params.sparse_overlay_sigma_m)
                                     if noisy else 0.0),
-        far_conflict_min_depth_m=(sensor_depth_at_sigma_m(noise_model, noise_coeff, params.far_overlay_sigma_m)
-                                  if noisy else 0.0),
+        far_conflict_min_depth_m=far_depth if noisy else 0.0,
     )
 
 
