@@ -774,6 +774,16 @@ class EvaluationConfig(_Section):
         "credit (shared_unknown_credit off); a winner that leaves more unknown keeps the rivals' credit as slack: "
         "at 0.85, a twin-room view labelled ambiguous was answered two rooms along.",
     )
+    duplicate_credit_once: bool = Field(
+        True,
+        description="With optimistic_rivals, a rival's credit for a stack of duplicate submap planes (centroids "
+        "within 3 cm, normals within 8 deg, map fusion's association limits: one surface fitted several times) "
+        "counts once, each plane's credit divided by the stack's size. A stereo camera's small face 4-5 m away comes "
+        "out of a window's fusion as up to a dozen such planes, and a corridor view's true pose was rejected "
+        "against a rival credited for twelve (docs/BENCHMARKS.md, 'A surface fitted several times, credited once': "
+        "the suite's stereo +1 true pose, its eleven replicates unchanged; Kinect and ToF have no duplicates). "
+        "false = each plane credited (before 2026-12-03).",
+    )
     evidence_area_m2: float = Field(
         1.0, gt=0, description="A matched plane's weight (Eq. 12-13) grows with its area up to this (small facets are "
         "weak evidence, and often clutter).",

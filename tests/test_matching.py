@@ -2460,3 +2460,60 @@ def test_modes_worked_out_once_per_query_give_the_results_of_modes_worked_out_ea
             assert (a.status, a.reason, a.score, a.counts) == (b.status, b.reason, b.score, b.counts)
             assert (a.T_map_cam is None and b.T_map_cam is None) or np.array_equal(a.T_map_cam, b.T_map_cam)
         assert worked[reloc] < 0.6 * worked[anew], worked
+
+
+def test_duplicate_stacks_chain_planes_at_one_place_with_normals_a_few_degrees_apart():
+    from reloc.matching.scoring import DUPLICATE_MAX_ANGLE_DEG, DUPLICATE_MAX_DISTANCE_M, duplicate_stacks
+
+    assert (DUPLICATE_MAX_DISTANCE_M, DUPLICATE_MAX_ANGLE_DEG) == (0.03, 8.0)
+
+    def normal(deg):
+        a = np.radians(deg)
+        return [np.cos(a), np.sin(a), 0.0]
+
+    # 0-2: a chain (0-1 and 1-2 are 2 cm and 6 deg apart, 0-2 are 4 cm and 12 deg); 3: at plane 0's place but turned
+    # 90 deg; 4: plane 0's normal, 5 cm away; 5 and 6: a pair 7 deg apart, 2.9 cm apart; 7: 9 deg off plane 5.
+    normals = np.array([normal(0), normal(6), normal(12), normal(90), normal(0), normal(0), normal(7), normal(-9)])
+    centroids = np.array([[0, 0, 0], [0.02, 0, 0], [0.04, 0, 0], [0, 0, 0], [0, 0.05, 0], [5, 0, 0],
+                          [5, 0.029, 0], [5, 0, 0]], dtype=float)
+    np.testing.assert_array_equal(duplicate_stacks(normals, centroids), [3, 3, 3, 1, 1, 2, 2, 1])
+    np.testing.assert_array_equal(duplicate_stacks(normals[:1], centroids[:1]), [1])
+
+
+def test_a_rival_is_credited_once_for_a_surface_fitted_several_times():
+    # Fourteen submap planes: six walls of 36 m^2 and a small face fitted eight times at one place (0.5 m^2 each,
+    # a match weighs 1 / the modes matching the plane, at most area / evidence_area_m2). The winner matches all of
+    # them; the rival, 2 m away, matches the six walls and leaves the eight duplicates where the map knows nothing.
+    # Weights: winner 6 x 0.5 + 8 x 0.5 = 7, rival 6 x 0.5 = 3, of 10. Credited with 0.75 of a match for each of
+    # the eight, the rival has (3 + 3) / 10 and the winner is 1.17 times it: ambiguous. Credited once for the
+    # stack, (3 + 0.375) / 10, and the winner is 2.07 times ahead. The winner's score is the same either way.
+    from reloc.config import Config
+    from reloc.matching.scoring import decide, duplicate_stacks
+
+    params = MatchingParams.from_config(Config())
+    assert params.duplicate_credit_once and params.rival_unknown_weight == 0.75
+    assert not MatchingParams.from_config(
+        Config.model_validate({"evaluation": {"duplicate_credit_once": False}})).duplicate_credit_once
+    normals = np.array([[1.0, 0, 0], [-1, 0, 0], [0, 1, 0], [0, -1, 0], [0, 0, 1], [0, 0, -1]]
+                       + [[np.cos(a), np.sin(a), 0.0] for a in np.radians(np.arange(8) * 0.5)])
+    centroids = np.array([[0.0, 0, 0], [4, 0, 0], [0, 3, 0], [0, -3, 0], [0, 0, -1], [0, 0, 2]]
+                         + [[2.0 + 0.003 * k, 1, 1] for k in range(8)])
+    stacks = duplicate_stacks(normals, centroids)
+    np.testing.assert_array_equal(stacks, [1] * 6 + [8] * 8)
+    R = np.stack([np.eye(3)] * 2)
+    t = np.array([[0.0, 0.0, 0.0], [2.0, 0.0, 0.0]])
+    match = np.array([list(range(14)), list(range(20, 26)) + [-1] * 8], np.int32)
+    state = np.array([[0] * 14, [0] * 6 + [1] * 8], np.int8)
+    overlap = np.where(match >= 0, 1.0, 0.0)
+    areas = np.array([36.0] * 6 + [0.5] * 8)
+    explained = np.array([1.0, 36 / (36 + 8 * np.sqrt(0.5))])
+
+    def run(stacks):
+        return decide(R, t, match, overlap, (match >= 0).sum(axis=1), explained, params, state=state, areas=areas,
+                      unknown=1.0 - explained, stacks=stacks)
+
+    each, once = run(None), run(stacks)
+    assert not each.accepted and each.reason.startswith("ambiguous"), each.reason
+    assert each.score == pytest.approx(0.7, rel=1e-6) and each.runner_up_score == pytest.approx(0.6, rel=1e-6)
+    assert once.accepted and once.best == 0, once.reason
+    assert once.score == pytest.approx(0.7, rel=1e-6) and once.runner_up_score == pytest.approx(0.3375, rel=1e-6)

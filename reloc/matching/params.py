@@ -131,6 +131,7 @@ class MatchingParams:
     small_rival_credit: bool = True
     shared_unknown_credit: bool = False
     shared_unknown_min_explained: float = 0.9
+    duplicate_credit_once: bool = True
     near_decision_offsets: bool = True
     near_decision_min_area_m2: float = 0.5
     # Set by scaled_to_sensor for near_decision_offsets: the exponent k of the sensor's law sigma = c z^k (0: not
@@ -304,6 +305,7 @@ class MatchingParams:
             small_rival_credit=e.small_rival_credit,
             shared_unknown_credit=e.shared_unknown_credit,
             shared_unknown_min_explained=e.shared_unknown_min_explained,
+            duplicate_credit_once=e.duplicate_credit_once,
             near_decision_offsets=e.near_decision_offsets,
             near_decision_min_area_m2=e.near_decision_min_area_m2,
             evidence_area_m2=e.evidence_area_m2,

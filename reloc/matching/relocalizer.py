@@ -34,6 +34,7 @@ from reloc.matching.scoring import (
     Decision,
     decide,
     distinct_from,
+    duplicate_stacks,
     explains_enough,
     facet_mask,
     in_conflict,
@@ -852,6 +853,14 @@ class Relocalizer:
         codes[forgiven] = FORGIVEN
         return codes if codes.any() else None
 
+    def _stacks(self, used: PlaneSet) -> np.ndarray | None:
+        """With ``duplicate_credit_once``, the size of each plane's stack of duplicates in ``used``
+        (:func:`reloc.matching.scoring.duplicate_stacks`); None when no plane has a duplicate."""
+        if not (self.params.duplicate_credit_once and self.params.optimistic_rivals):
+            return None
+        stacks = duplicate_stacks(used.normals, used.centroids)
+        return stacks if np.any(stacks > 1) else None
+
     def _decide(self, hyps, used: PlaneSet, min_matched: int, timings: dict, modes: dict | None = None) -> Decision:
         """The decision over every hypothesis so far; its weights and density times go to ``timings``, its modes to
         ``modes`` when given (see :func:`decide`)."""
@@ -859,7 +868,8 @@ class Relocalizer:
         decision = decide(hyps.R, hyps.t, hyps.match, hyps.over, hyps.n_matched, hyps.explained, self.params,
                           min_matched=min_matched, state=hyps.state, areas=used.areas, free_frac=hyps.free_frac,
                           unknown=hyps.unknown, blocked=hyps.blocked(), hidden_frac=hyps.hidden_frac,
-                          optimistic=self._map_knows_free_space, timings_ms=part, modes=modes, forgiven=hyps.forgiven)
+                          optimistic=self._map_knows_free_space, timings_ms=part, modes=modes, forgiven=hyps.forgiven,
+                          stacks=self._stacks(used))
         timings["decide.weights"] += part.get("weights", 0.0)
         timings["decide.density"] += part.get("density", 0.0)
         return decision
