@@ -186,10 +186,13 @@ class _Hypotheses:
 
     _FIELDS = ("match", "proj", "over", "state", "free_frac", "n_matched", "explained", "unknown")
 
-    def __init__(self, S: int, forgiven: np.ndarray | None = None):
+    def __init__(self, S: int, forgiven: np.ndarray | None = None, stacks: np.ndarray | None = None):
         # Per submap plane: whether its conflicts with the map are forgiven when a pose's explained fraction is
-        # judged, coded as scoring.explains_enough reads it (Relocalizer._forgiven); None when no plane is.
+        # judged, coded as scoring.explains_enough reads it (Relocalizer._forgiven); None when no plane is. And the
+        # size of its stack of duplicates, which divides a rival's credit for it (Relocalizer._stacks); None when
+        # no plane has a duplicate.
         self.forgiven = forgiven
+        self.stacks = stacks
         self.R = np.zeros((0, 3, 3))
         self.t = np.zeros((0, 3))
         self.cand = np.zeros((0, 6), np.int32)
@@ -669,7 +672,7 @@ class Relocalizer:
                      self._mode_rows(hyps, used, vs_ptr, vs_pts, np.asarray(new, np.int64), several))
         m = rows.take([(int(a), several) for a in leaders])
         v = Verification(**{name: m[name] for name in _ModeRows.VERIFIED}, evaluated=0)
-        out = _Hypotheses(len(used), hyps.forgiven)
+        out = _Hypotheses(len(used), hyps.forgiven, hyps.stacks)
         out.add(m["R"], m["t"], hyps.cand[leaders], v)
         out.leader = leaders[v.passed]
         out.unrefined = leaders[~m["refined"]]
@@ -869,7 +872,7 @@ class Relocalizer:
                           min_matched=min_matched, state=hyps.state, areas=used.areas, free_frac=hyps.free_frac,
                           unknown=hyps.unknown, blocked=hyps.blocked(), hidden_frac=hyps.hidden_frac,
                           optimistic=self._map_knows_free_space, timings_ms=part, modes=modes, forgiven=hyps.forgiven,
-                          stacks=self._stacks(used))
+                          stacks=hyps.stacks)
         timings["decide.weights"] += part.get("weights", 0.0)
         timings["decide.density"] += part.get("density", 0.0)
         return decision
@@ -952,7 +955,7 @@ class Relocalizer:
         v = replace(v, passed=v.passed & (v.n_matched > hyps.n_matched.max(initial=0)))
         if not v.passed.any():
             return decision
-        extra = _Hypotheses(len(used), hyps.forgiven)
+        extra = _Hypotheses(len(used), hyps.forgiven, hyps.stacks)
         extra.add(R, t, cand, v)
         tight = self._tightened(extra, used, vs_ptr, vs_pts)
         if not len(tight):
@@ -1018,7 +1021,7 @@ class Relocalizer:
             return finish(_rejected(
                 too_few_planes_reason(S, len(self.index), min_matched), counts, timings
             ))
-        hyps = _Hypotheses(S, self._forgiven(used, vs_ptr, vs_pts, distances))
+        hyps = _Hypotheses(S, self._forgiven(used, vs_ptr, vs_pts, distances), self._stacks(used))
         coarse = judged = hyps
         decision = Decision(False, "no hypothesis passed verification", -1, 0.0, 0.0, 0)
         rounds = range(min(p.initial_planes, S), S + 1) if p.incremental else [S]
@@ -1260,7 +1263,7 @@ class Relocalizer:
                 f"pose does not verify: {int(v.n_matched[0])} planes matched{in_free}, {v.explained[0]:.2f} of the "
                 "submap explained", counts, timings,
             ))
-        hyps = _Hypotheses(S, self._forgiven(used, vs_ptr, vs_pts))
+        hyps = _Hypotheses(S, self._forgiven(used, vs_ptr, vs_pts), self._stacks(used))
         hyps.add(R, t, cand, v)
         t0 = time.perf_counter()
         decision, judged = self._judge(hyps, used, vs_ptr, vs_pts, min_matched, timings)
