@@ -34,8 +34,8 @@ FACET_MIN_ANGLE_DEG = 8.0
 FACET_MAX_ANGLE_DEG = 60.0
 FACET_TOUCH_M = 0.15
 #: Two submap planes whose centroids lie within DUPLICATE_MAX_DISTANCE_M of each other, normals within
-#: DUPLICATE_MAX_ANGLE_DEG (the association limits of map fusion), are one surface fitted twice (see
-#: :func:`duplicate_stacks`).
+#: DUPLICATE_MAX_ANGLE_DEG (the values of map fusion's ``fuse_max_offset_m`` and ``fuse_max_angle_deg``), are one
+#: surface fitted twice (see :func:`duplicate_stacks`).
 DUPLICATE_MAX_DISTANCE_M = 0.03
 DUPLICATE_MAX_ANGLE_DEG = 8.0
 
