@@ -65,7 +65,7 @@ def paper_settings(params):
         min_explained_known_fraction=0.0, facet_max_area_m2=0.0, well_matched_planes=0, noisy_well_matched_planes=0,
         min_competitor_fraction=0.0, free_space=False, min_direction_support_m2=0.0, hidden_against_support=False,
         conflicts_against_support=False, near_decision_offsets=False,
-        max_conflict_area_m2=0.0, min_uncontradicted_planes=0,
+        max_conflict_area_m2=0.0, min_uncontradicted_planes=0, noisy_min_uncontradicted_planes=0,
         min_overlap=0.3, noisy_min_projection_ratio=1.0, noisy_refine_max_angle_rad=params.refine_max_angle_rad,
         refine_fallback_max_angle_rad=0.0,
         final_max_angle_rad=params.match_max_angle_rad, final_max_offset_m=params.match_max_offset_m,

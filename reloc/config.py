@@ -598,8 +598,15 @@ class EvaluationConfig(_Section):
         5, ge=0,
         description="Scene uniqueness counted net of the map's contradictions: the winning pose's matched planes "
         "less its planes in conflict with the map (off a map surface facing the same way, or hidden behind one) must "
-        "be at least this (0 = off; off for a sensor noisier than occlusion_max_sensor_sigma_m). A pose whose five "
-        "matches are undone by two contradictions has the evidence of three.",
+        "be at least this (0 = off; for a sensor noisier than occlusion_max_sensor_sigma_m, "
+        "noisy_min_uncontradicted_planes applies instead). A pose whose five matches are undone by two contradictions "
+        "has the evidence of three.",
+    )
+    noisy_min_uncontradicted_planes: int = Field(
+        4, ge=0,
+        description="min_uncontradicted_planes for a sensor noisier than occlusion_max_sensor_sigma_m, where only the "
+        "conflicts not forgiven already count against the pose (forgiven: far planes from where the noise reaches "
+        "far_overlay_sigma_m, facets of curved clutter, sparse planes laid over larger ones). 0 = off.",
     )
     match_max_angle_deg: float = Field(5.0, gt=0, description="A submap plane matches a map plane within this angle...")
     match_max_offset_m: float = Field(0.08, gt=0, description="...and this offset, after the transform.")

@@ -22,6 +22,7 @@ from reloc.matching.selection import (
     order_submap_planes,
     sample_distances,
     submap_triplets,
+    view_distances,
 )
 from reloc.matching.transform import rotation_from_normal_pairs
 from reloc.planes import transform_planes
@@ -1922,8 +1923,60 @@ def test_planes_in_conflict_with_the_map_count_against_scene_uniqueness():
     assert reasons[2, 4] == ("contradicted by the map: 5 planes matched less 2 in conflict with it or hidden behind "
                              "it leaves 3, under 4")
     stereo = Config.model_validate({"extraction": {"noise_model": "stereo", "noise_coeff": 2.4e-3}})
-    assert MatchingParams.from_config(stereo).min_uncontradicted_planes == 0
+    assert MatchingParams.from_config(stereo).min_uncontradicted_planes == 4  # noisy_min_uncontradicted_planes
+    assert MatchingParams.from_config(stereo).uncontradicted_net_of_forgiven
     assert MatchingParams.from_config(Config()).min_uncontradicted_planes == MatchingParams().min_uncontradicted_planes
+    assert not MatchingParams.from_config(Config()).uncontradicted_net_of_forgiven
+
+
+def test_a_noisy_sensor_counts_scene_uniqueness_net_of_the_conflicts_not_forgiven():
+    """A room 9 m long seen from one end, looking 10 deg down: floor, ceiling and three walls match the map, five
+    planes. Panels of 0.49 m^2 unknown to the map, 15 cm off a map surface facing the same way, are in conflict with
+    it: near ones 3.0 m away over the floor, far ones 7.9-8.0 m away before the end wall, beyond the stereo camera's
+    far_conflict_min_depth_m (4.98 m), where their conflicts are forgiven. Stereo needs 4 matched planes net of the
+    conflicts not forgiven: two near panels reject the pose, far ones do not count; counting every conflict, two of
+    any kind reject it. Kinect needs 5 net of every conflict: one panel rejects it. At the accepted poses the pose is
+    exact."""
+    from reloc.config import Config
+    from reloc.evaluation.synthetic import Rect, room
+
+    rects = room(9.0, 5.0, 2.6)
+    T = look_at((1.0, 2.5, 1.4), (9.0, 2.5, 0.0))
+    stereo = scaled_to_sensor(MatchingParams(), "stereo", 2.4187e-3)
+    assert (stereo.min_uncontradicted_planes, stereo.uncontradicted_net_of_forgiven) == (4, True)
+    assert stereo.far_conflict_min_depth_m == pytest.approx(4.98, abs=0.01)
+    kinect = scaled_to_sensor(MatchingParams(), "kinect", 1.425e-3)
+    assert (kinect.min_uncontradicted_planes, kinect.uncontradicted_net_of_forgiven) == (5, False)
+    methods = {"stereo": stereo, "stereo, every conflict": stereo.with_(uncontradicted_net_of_forgiven=False),
+               "stereo, off": scaled_to_sensor(MatchingParams(noisy_min_uncontradicted_planes=0), "stereo", 2.4187e-3),
+               "kinect": kinect}
+    world = scene_planes(rects)
+    outcomes = {}
+    for near, far in ((0, 0), (1, 0), (2, 0), (0, 2), (1, 2)):
+        extra = ([Rect((3.6, 1.6 + 1.6 * k, 0.15), (0, 0, 1), (1, 0, 0), 0.35, 0.35) for k in range(near)]
+                 + [Rect((8.85, 1.2 + 2.0 * k, 1.3), (-1, 0, 0), (0, 1, 0), 0.35, 0.35) for k in range(far)])
+        sub = view_planes(rects + extra, T, max_range_m=10.0)
+        depths = np.sort(view_distances(sub))
+        assert len(sub) == 5 + near + far
+        assert np.all((depths[:near] > 2.9) & (depths[:near] < 3.1)) and np.all(depths[near:] > 5.0)
+        for name, params in methods.items():
+            r = Relocalizer(world, params).confirm(sub, T)
+            if r.relocalized:
+                assert pose_error(r.T_map_cam, T)[0] < 1e-6
+            outcomes[name, near, far] = r.reason or "relocalized"
+    rejected = {k for k, v in outcomes.items() if v != "relocalized"}
+    assert rejected == {("stereo", 2, 0), ("stereo, every conflict", 2, 0), ("stereo, every conflict", 0, 2),
+                        ("stereo, every conflict", 1, 2), ("kinect", 1, 0), ("kinect", 2, 0), ("kinect", 0, 2),
+                        ("kinect", 1, 2)}
+    assert outcomes["stereo", 2, 0] == ("contradicted by the map: 5 planes matched less 2 in conflict with it or "
+                                        "hidden behind it leaves 3, under 4")
+    assert outcomes["stereo, every conflict", 1, 2] == ("contradicted by the map: 5 planes matched less 3 in conflict "
+                                                        "with it or hidden behind it leaves 2, under 4")
+    assert outcomes["kinect", 1, 0] == ("contradicted by the map: 5 planes matched less 1 in conflict with it or "
+                                        "hidden behind it leaves 4, under 5")
+    stereo_config = Config.model_validate({"extraction": {"noise_model": "stereo", "noise_coeff": 2.4e-3},
+                                           "evaluation": {"noisy_min_uncontradicted_planes": 3}})
+    assert MatchingParams.from_config(stereo_config).min_uncontradicted_planes == 3
 
 
 def test_a_pose_may_win_with_the_rest_of_its_submap_unknown_to_the_map_but_not_in_conflict():

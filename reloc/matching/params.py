@@ -78,6 +78,11 @@ class MatchingParams:
     max_conflict_area_m2: float = 1.0
     conflict_vetoes_rivals: bool = True
     min_uncontradicted_planes: int = 5
+    # min_uncontradicted_planes for a sensor noisier than occlusion_max_sensor_sigma_m (set by scaled_to_sensor, with
+    # uncontradicted_net_of_forgiven: planes whose conflicts are forgiven, see Relocalizer._forgiven, count for the
+    # pose when matched and not against it when in conflict).
+    noisy_min_uncontradicted_planes: int = 4
+    uncontradicted_net_of_forgiven: bool = False
     min_explained_fraction: float = 0.85
     well_matched_planes: int = 0
     well_matched_explained_fraction: float = 0.85
@@ -252,6 +257,7 @@ class MatchingParams:
             max_conflict_area_m2=e.max_conflict_area_m2,
             conflict_vetoes_rivals=e.conflict_vetoes_rivals,
             min_uncontradicted_planes=e.min_uncontradicted_planes,
+            noisy_min_uncontradicted_planes=e.noisy_min_uncontradicted_planes,
             min_explained_fraction=e.min_explained_fraction,
             well_matched_planes=e.well_matched_planes,
             well_matched_explained_fraction=e.well_matched_explained_fraction,
@@ -359,8 +365,9 @@ def scaled_to_sensor(params: MatchingParams, noise_model: str, noise_coeff: floa
     """``params`` with ``decision_max_offset_m`` and ``decision_conflict_m`` raised to ``DECISION_SIGMAS`` and
     ``CONFLICT_SIGMAS`` times the sensor's noise at 3 m (never lowered), ``occlusion`` off when that noise exceeds
     ``occlusion_max_sensor_sigma_m`` (and ``path_test`` with it: both trust the map's doorways to be open; and the
-    conflict tests of ``max_conflict_area_m2`` and ``min_uncontradicted_planes``: at their true poses the suite's
-    stereo views had planes of up to 6.7 m^2 in conflict, far planes tilted off the map's walls), and
+    conflict test of ``max_conflict_area_m2``: at their true poses the suite's stereo views had planes of up to 6.7
+    m^2 in conflict, far planes tilted off the map's walls; ``min_uncontradicted_planes`` becomes
+    ``noisy_min_uncontradicted_planes``, net of the conflicts not forgiven: ``uncontradicted_net_of_forgiven``), and
     ``min_projection_ratio`` lowered to ``noisy_min_projection_ratio``, ``refine_max_angle_rad`` raised to
     ``noisy_refine_max_angle_rad``, ``well_matched_planes`` and ``well_matched_explained_fraction`` set to their
     ``noisy_`` values and ``rival_unknown_weight`` lowered to ``noisy_rival_unknown_weight`` when that noise exceeds
@@ -411,7 +418,9 @@ def scaled_to_sensor(params: MatchingParams, noise_model: str, noise_coeff: floa
         path_test=params.path_test and sigma <= params.occlusion_max_sensor_sigma_m,
         max_conflict_area_m2=params.max_conflict_area_m2 if sigma <= params.occlusion_max_sensor_sigma_m else 0.0,
         min_uncontradicted_planes=(params.min_uncontradicted_planes if sigma <= params.occlusion_max_sensor_sigma_m
-                                   else 0),
+                                   else params.noisy_min_uncontradicted_planes),
+        uncontradicted_net_of_forgiven=(params.uncontradicted_net_of_forgiven
+                                        or sigma > params.occlusion_max_sensor_sigma_m),
         min_projection_ratio=(min(params.min_projection_ratio, params.noisy_min_projection_ratio)
                               if noisy else params.min_projection_ratio),
         refine_max_angle_rad=(max(params.refine_max_angle_rad, params.noisy_refine_max_angle_rad)

@@ -1068,9 +1068,10 @@ class Relocalizer:
     def _conclude(self, used, order, vs_ptr, vs_pts, hyps, tightened: bool, decision: Decision, min_matched: int,
                   counts: dict, timings: dict, trace: dict | None = None) -> RelocResult:
         """The accepted ``decision``'s winner (a hypothesis of ``hyps``; ``tightened``: of the decision over refined
-        poses), held to ``min_uncontradicted_planes`` matched planes net of its planes in conflict with the map,
-        refined by least squares over all its matched planes (``refine_iterations`` times, each refined pose
-        verified again), then held to the final tolerances, to the explained fraction, to no plane of
+        poses), held to ``min_uncontradicted_planes`` matched planes net of its planes in conflict with the map (with
+        ``uncontradicted_net_of_forgiven``, of those whose conflicts are not forgiven), refined by least squares over
+        all its matched planes (``refine_iterations`` times, each refined pose verified again), then held to the
+        final tolerances, to the explained fraction, to no plane of
         ``max_conflict_area_m2`` or more in conflict with the map and to the support along its weakest direction: the
         result, relocalized or rejected with the reason."""
         p = self.params
@@ -1081,7 +1082,12 @@ class Relocalizer:
             # off) matched 5 planes with 2 in conflict, and no rival was found. Decided over refined poses, the
             # matches are counted at the final tolerances and the conflicts at the decision's offsets, so a plane
             # matched only within the former and in conflict at the latter counts for nothing.
-            n, against = int(hyps.n_matched[b]), int(np.count_nonzero(in_conflict(hyps.state[b])))
+            # A noisy sensor's planes whose conflicts are forgiven (far planes, facets, sparse overlays; see
+            # _forgiven) do not count against the pose (uncontradicted_net_of_forgiven, set by scaled_to_sensor).
+            conflicts = in_conflict(hyps.state[b])
+            if p.uncontradicted_net_of_forgiven and hyps.forgiven is not None:
+                conflicts &= hyps.forgiven == 0
+            n, against = int(hyps.n_matched[b]), int(np.count_nonzero(conflicts))
             if n - against < p.min_uncontradicted_planes:
                 return _rejected(f"contradicted by the map: {n} planes matched less {against} in conflict with it or "
                                  f"hidden behind it leaves {n - against}, under {p.min_uncontradicted_planes}",
