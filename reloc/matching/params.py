@@ -402,6 +402,8 @@ def scaled_to_sensor(params: MatchingParams, noise_model: str, noise_coeff: floa
     where 0.5 let in 5 and 4 false positives over the same suites (for 7 and 9 true poses more)."""
     sigma = sensor_sigma_m(noise_model, noise_coeff)
     noisy = sigma > params.noisy_sensor_sigma_m
+    # Quiet enough for the map's surfaces to be trusted to end where the walls end (occlusion_max_sensor_sigma_m).
+    sharp = sigma <= params.occlusion_max_sensor_sigma_m
     first = params.noise_depth_power <= 0
     # Where the noise reaches far_overlay_sigma_m: far planes laid over larger ones are left out from there, and a
     # noisy sensor's planes in conflict there are forgiven at a well-matched pose.
@@ -414,13 +416,11 @@ def scaled_to_sensor(params: MatchingParams, noise_model: str, noise_coeff: floa
         decision_conflict_floor_m=params.decision_conflict_m if first else params.decision_conflict_floor_m,
         decision_max_offset_m=max(params.decision_max_offset_m, DECISION_SIGMAS * sigma),
         decision_conflict_m=max(params.decision_conflict_m, CONFLICT_SIGMAS * sigma),
-        occlusion=params.occlusion and sigma <= params.occlusion_max_sensor_sigma_m,
-        path_test=params.path_test and sigma <= params.occlusion_max_sensor_sigma_m,
-        max_conflict_area_m2=params.max_conflict_area_m2 if sigma <= params.occlusion_max_sensor_sigma_m else 0.0,
-        min_uncontradicted_planes=(params.min_uncontradicted_planes if sigma <= params.occlusion_max_sensor_sigma_m
-                                   else params.noisy_min_uncontradicted_planes),
-        uncontradicted_net_of_forgiven=(params.uncontradicted_net_of_forgiven
-                                        or sigma > params.occlusion_max_sensor_sigma_m),
+        occlusion=params.occlusion and sharp,
+        path_test=params.path_test and sharp,
+        max_conflict_area_m2=params.max_conflict_area_m2 if sharp else 0.0,
+        min_uncontradicted_planes=params.min_uncontradicted_planes if sharp else params.noisy_min_uncontradicted_planes,
+        uncontradicted_net_of_forgiven=params.uncontradicted_net_of_forgiven or not sharp,
         min_projection_ratio=(min(params.min_projection_ratio, params.noisy_min_projection_ratio)
                               if noisy else params.min_projection_ratio),
         refine_max_angle_rad=(max(params.refine_max_angle_rad, params.noisy_refine_max_angle_rad)
