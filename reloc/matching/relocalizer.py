@@ -1071,9 +1071,8 @@ class Relocalizer:
         poses), held to ``min_uncontradicted_planes`` matched planes net of its planes in conflict with the map (with
         ``uncontradicted_net_of_forgiven``, of those whose conflicts are not forgiven), refined by least squares over
         all its matched planes (``refine_iterations`` times, each refined pose verified again), then held to the
-        final tolerances, to the explained fraction, to no plane of
-        ``max_conflict_area_m2`` or more in conflict with the map and to the support along its weakest direction: the
-        result, relocalized or rejected with the reason."""
+        final tolerances, to the explained fraction, to no plane of ``max_conflict_area_m2`` or more in conflict with
+        the map and to the support along its weakest direction: the result, relocalized or rejected with the reason."""
         p = self.params
         t0 = time.perf_counter()
         b = decision.best
