@@ -13,6 +13,7 @@ import numpy as np
 
 from reloc.camera import DepthFrame
 from reloc.planeset import PlaneSet
+from reloc.rowkeys import count_unique_rows, first_unique_rows
 from sim.noise import NoiseModel, make_noise
 from sim.scenes import Scene
 
@@ -158,14 +159,13 @@ def _patch_area(pts: np.ndarray, n: np.ndarray, patch_m: float) -> float:
     """Area as the number of occupied ``patch_m`` squares of the plane times their area."""
     e1, e2 = _plane_basis(n)
     cells = np.floor(np.column_stack([pts @ e1, pts @ e2]) / patch_m).astype(np.int64)
-    return float(len(np.unique(cells, axis=0))) * patch_m * patch_m
+    return float(count_unique_rows(cells)) * patch_m * patch_m
 
 
 def _voxel_sample(pts: np.ndarray, spacing_m: float) -> np.ndarray:
     """One point (the first) per occupied ``spacing_m`` voxel: exact surface points, deterministic order."""
     keys = np.floor(pts / spacing_m).astype(np.int64)
-    _, first = np.unique(keys, axis=0, return_index=True)
-    return pts[np.sort(first)]
+    return pts[np.sort(first_unique_rows(keys))]
 
 
 def _plane_covariance(pts: np.ndarray, n: np.ndarray, sigma: np.ndarray) -> np.ndarray:

@@ -30,6 +30,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from reloc.planeset import PlaneSet
+from reloc.rowkeys import count_unique_rows
 
 __all__ = [
     "FusionParams",
@@ -149,7 +150,7 @@ def patch_area(points: np.ndarray, normal: np.ndarray, patch_m: float) -> float:
     """Area (m^2) of the ``patch_m`` x ``patch_m`` cells of the plane occupied by ``points`` (M, 3)."""
     if len(points) == 0:
         return 0.0
-    return float(len(np.unique(plane_cells(points, plane_basis(normal), patch_m), axis=0)) * patch_m**2)
+    return float(count_unique_rows(plane_cells(points, plane_basis(normal), patch_m)) * patch_m**2)
 
 
 def _pinv_symmetric(a: np.ndarray, rcond: float) -> np.ndarray:
