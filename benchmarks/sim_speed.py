@@ -1,5 +1,6 @@
 """Speed of the simulated camera: render time per frame for every scene and camera preset, the noise models, the
-slow NumPy reference renderer side by side, and frames per second for writing a sequence to disk.
+slow NumPy reference renderer side by side, frames per second for writing a sequence to disk, and the ground-truth
+planes of a frame (the plane source of every oracle suite) beside the same with ``np.unique(axis=0)``.
 
     .venv/bin/python benchmarks/sim_speed.py [--frames 30] [--write-frames 100]
 
@@ -24,6 +25,7 @@ from _common import results_name, write_results  # noqa: E402
 
 from reloc._numba import warm_up  # noqa: E402
 from sim import KERNEL_MODULES as SIM_KERNELS, make_camera  # noqa: E402
+import sim.ground_truth as ground_truth  # noqa: E402
 from sim.cameras import PRESETS, preset  # noqa: E402
 from sim.noise import NOISE_NAMES, make_noise  # noqa: E402
 from sim.reference import reference_render  # noqa: E402
@@ -36,6 +38,50 @@ from sim.writer import write_sequence  # noqa: E402
 def _stats(times_s: list[float]) -> dict:
     ms = np.asarray(times_s) * 1e3
     return {"median_ms": float(np.median(ms)), "p95_ms": float(np.percentile(ms, 95)), "n": int(len(ms))}
+
+
+def _unique_rows_count(rows: np.ndarray) -> int:
+    return len(np.unique(rows, axis=0))
+
+
+def _unique_rows_first(rows: np.ndarray) -> np.ndarray:
+    return np.unique(rows, axis=0, return_index=True)[1]
+
+
+def _ground_truth_planes(n_frames: int) -> list[dict]:
+    """``visible_planes`` of Kinect frames at 320x240 (the suite's), ours and with the distinct grid rows found by
+    ``np.unique(axis=0)`` (before 773cddf); the two must give the same arrays."""
+    print(f"\n{'ground-truth planes':<30}{'scene':<15}{'frames':>7}{'planes':>8}{'median ms':>11}{'p95 ms':>9}")
+    out = []
+    for scene_name in ("office", "meeting_rooms"):
+        camera = make_camera(scene_name, "handheld", n_frames, "kinect", "kinect", seed=0, width=320, height=240)
+        scene, frames = camera.scene, list(camera)
+        sets = {}
+        for label, count, first in (("ours (reloc.rowkeys)", ground_truth.count_unique_rows,
+                                      ground_truth.first_unique_rows),
+                                     ("np.unique(axis=0)", _unique_rows_count, _unique_rows_first)):
+            saved = ground_truth.count_unique_rows, ground_truth.first_unique_rows
+            ground_truth.count_unique_rows, ground_truth.first_unique_rows = count, first
+            try:
+                ground_truth.visible_planes(frames[0], scene)
+                times, sets[label] = [], []
+                for f in frames:
+                    t0 = time.perf_counter()
+                    ps = ground_truth.visible_planes(f, scene)
+                    times.append(time.perf_counter() - t0)
+                    sets[label].append(ps)
+            finally:
+                ground_truth.count_unique_rows, ground_truth.first_unique_rows = saved
+            s = _stats(times)
+            planes = int(sum(len(ps) for ps in sets[label]))
+            out.append({"method": label, "scene": scene_name, "planes": planes, **s})
+            print(f"{label:<30}{scene_name:<15}{len(frames):>7}{planes:>8}{s['median_ms']:>11.2f}{s['p95_ms']:>9.2f}")
+        a, b = sets.values()
+        same = all(np.array_equal(getattr(x, f), getattr(y, f)) for x, y in zip(a, b)
+                   for f in ("areas", "sample_points", "sample_ptr", "covariances", "centroids"))
+        out[-2]["same_arrays"] = out[-1]["same_arrays"] = bool(same)
+        print(f"{'':<30}{scene_name:<15}  the same arrays both ways: {same}")
+    return out
 
 
 def main() -> None:
@@ -122,9 +168,12 @@ def main() -> None:
             label = f"{scene_name}, {cam}, kinect noise, robot"
             print(f"{label:<40}{s.n_frames:>7}{dt:>9.2f}{s.n_frames / dt:>10.1f}")
 
+    gt_rows = _ground_truth_planes(args.frames)
+
     path = write_results(
         args.name, params={"frames": args.frames, "write_frames": args.write_frames},
-        results={"render": rows, "render_baseline": baseline, "noise": noise_rows, "write_sequence": write_rows},
+        results={"render": rows, "render_baseline": baseline, "noise": noise_rows, "write_sequence": write_rows,
+                 "ground_truth_planes": gt_rows},
     )
     print(f"\nwrote {path}")
 
