@@ -5,6 +5,10 @@ from __future__ import annotations
 import time
 from pathlib import Path
 
+# Every module whose kernels have warm-ups (``reloc._numba.register_warmup``).
+KERNEL_MODULES = ("reloc.extraction.pipeline", "reloc.matching._kernels", "reloc.mapping._kernels",
+                  "sim._noise_kernels", "sim._render_kernels")
+
 
 def wait_until(predicate, timeout_s: float = 10.0, period_s: float = 0.01) -> bool:
     """Poll ``predicate`` until it is true or ``timeout_s`` has passed; its last value."""

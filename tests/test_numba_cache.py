@@ -8,6 +8,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+from helpers import KERNEL_MODULES
+
 from reloc import _numba
 
 
@@ -60,9 +62,7 @@ def test_cold_cache_prints_one_line_and_warm_prints_none(monkeypatch, capsys):
 def test_after_the_warm_up_every_registered_kernel_is_cached():
     """Otherwise every start would announce a cold cache (an inlined helper, compiled only into its callers, once
     counted as one cold kernel on every run of the demo)."""
-    modules = ("reloc.extraction.pipeline", "reloc.matching._kernels", "reloc.mapping._kernels", "sim._noise_kernels",
-               "sim._render_kernels")
-    _numba.warm_up(modules, quiet=True)
+    _numba.warm_up(KERNEL_MODULES, quiet=True)
     cold = [f"{d.py_func.__module__}.{d.py_func.__name__}" for d in _numba._KERNELS if not _numba._has_cache_index(d)]
     assert cold == []
     assert _numba.warm_up(quiet=True)["cold"] == 0
