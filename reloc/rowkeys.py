@@ -23,13 +23,13 @@ def row_keys(rows: np.ndarray) -> np.ndarray | None:
     rows = rows.astype(np.int64, copy=False)
     if len(rows) == 0:
         return np.zeros(0, dtype=np.int64)
-    lo = rows.min(axis=0)
-    span = rows.max(axis=0) - lo + 1
+    lo, hi = rows.min(axis=0), rows.max(axis=0)
     total = 1
-    for s in span.tolist():  # Python integers: the product cannot overflow here
-        total *= s
+    for a, b in zip(lo.tolist(), hi.tolist()):  # Python integers: neither a span nor their product can overflow
+        total *= b - a + 1
     if total >= _MAX_KEYS:
         return None
+    span = hi - lo + 1
     keys = rows[:, 0] - lo[0]
     for j in range(1, rows.shape[1]):
         keys = keys * span[j] + (rows[:, j] - lo[j])

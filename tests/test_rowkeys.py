@@ -28,6 +28,9 @@ def test_rows_too_wide_to_pack_fall_back_to_np_unique():
     assert row_keys(rows) is None
     assert count_unique_rows(rows) == 2
     np.testing.assert_array_equal(first_unique_rows(rows), [0, 1])
+    extreme = np.array([[np.iinfo(np.int64).min, 0], [np.iinfo(np.int64).max, 0], [np.iinfo(np.int64).min, 0]])
+    assert row_keys(extreme) is None  # a span that int64 arithmetic would wrap
+    np.testing.assert_array_equal(first_unique_rows(extreme), [0, 1])
 
 
 def test_no_rows_and_bad_rows():
