@@ -31,7 +31,8 @@ def pytest_collection_finish(session):
     tests, one at a time, would compile them all in this process. On a warm cache it loads them, about a second.
     ``RELOC_TEST_WARM_UP=0`` leaves every kernel to compile when a test first calls it.
     """
-    if len(session.items) < WARM_UP_MIN_TESTS or os.environ.get("RELOC_TEST_WARM_UP", "1") == "0":
+    if (len(session.items) < WARM_UP_MIN_TESTS or session.config.option.collectonly
+            or os.environ.get("RELOC_TEST_WARM_UP", "1") == "0"):
         return
     from helpers import KERNEL_MODULES
 
